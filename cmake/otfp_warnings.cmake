@@ -1,0 +1,7 @@
+# Per-target warnings: otfp_set_warnings(<target>)
+function(otfp_set_warnings target)
+  target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic -Wshadow)
+  if(OTFP_WARNINGS_AS_ERRORS)
+    target_compile_options(${target} PRIVATE -Werror)
+  endif()
+endfunction()

@@ -1,0 +1,150 @@
+#pragma once
+// The discrete energy-dissipation functional (28) and its exact gradient.
+//
+//   F(x, s) = T(x, s) + E(x, s) + B(x)
+//   T = sum_p m_p / (2 dt) (|x_p - x_p^k|^2 + c_w (s_p - s_p^k)^2)   transport
+//   E = kappa sum_p m_p log(rho(x_p) / rho_ref)                       entropy
+//   B = sum_p m_p Psi(x_p)                                            barrier
+//   rho(y) = sum_q m_q (beta_q/pi)^(d/2) exp(-beta_q |y - x_q|^2)     (29)
+//
+// Widths are s = beta^-1/2; gradients are with respect to x and s. Each term
+// has its own value and gradient; Functional sums them.
+#include <cstdint>
+#include <vector>
+
+#include "otfp/barrier.hpp"
+#include "otfp/neighbor_list.hpp"
+#include "otfp/particles.hpp"
+
+namespace otfp {
+
+// Width metric coefficient c_w of the transport term (METHOD-NOTES 2.3).
+enum class WidthMetric {
+  AsPrinted,      // c_w = 1, as printed in (28) and [2023] (15)
+  ExactGaussian   // c_w = d/2, the exact 2-Wasserstein distance between isotropic Gaussians
+};
+double width_metric_coefficient(WidthMetric metric, int dim);
+
+// Gradient storage: position gradient per particle and, optionally, width gradient.
+struct Gradient {
+  std::vector<Vec3> x;
+  std::vector<double> s;
+  void resize(std::size_t n, bool with_widths);
+  void set_zero();
+};
+
+struct FunctionalParts {
+  double transport = 0.0;
+  double entropy = 0.0;
+  double barrier = 0.0;
+  double total() const { return transport + entropy + barrier; }
+};
+
+// Transport term T: quadratic in x and s.
+class TransportTerm {
+ public:
+  TransportTerm(double dt, double c_w);
+  // x_ref, s_ref: the configuration at t_k. grad may be null.
+  double evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m,
+                  const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref, Gradient* grad) const;
+  double dt() const { return dt_; }
+  double c_w() const { return c_w_; }
+
+ private:
+  double dt_, c_w_;
+};
+
+// Entropy term E with the exact gradient in two pair sweeps (METHOD-NOTES 1):
+// the first gives rho_p and grad rho, the second gathers term 2 with the 1/rho_p factors.
+class EntropyTerm {
+ public:
+  EntropyTerm(int dim, double kappa, double rho_ref);
+  // The neighbour list must be valid for (x, s). grad may be null; grad->s is
+  // filled only if it has the right size.
+  double evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m,
+                  const NeighborList& list, Gradient* grad);
+  // The same with the plain O(n^2) sum over all pairs (reference; periodic via minimum image).
+  double evaluate_all_pairs(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m,
+                            const Periodicity& periodicity, Gradient* grad);
+  // rho_p and grad rho(x_p) from the last evaluation.
+  const std::vector<double>& density() const { return rho_; }
+  const std::vector<Vec3>& density_gradient() const { return grad_rho_; }
+  std::uint64_t pair_evaluations() const { return pair_evals_; }
+  double kappa() const { return kappa_; }
+  double rho_ref() const { return rho_ref_; }
+  int dim() const { return dim_; }
+
+ private:
+  template <class Rows>
+  double evaluate_impl(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m,
+                       const Periodicity& per, const Rows& rows, Gradient* grad);
+  int dim_;
+  double kappa_, rho_ref_;
+  std::vector<double> rho_, beta_, mc_, a_;
+  std::vector<Vec3> grad_rho_;
+  std::uint64_t pair_evals_ = 0;
+};
+
+// Barrier term B = sum_p m_p Psi(x_p).
+class BarrierTerm {
+ public:
+  explicit BarrierTerm(Barrier barrier = {});
+  double evaluate(const std::vector<Vec3>& x, const std::vector<double>& m, Gradient* grad) const;
+  const Barrier& barrier() const { return barrier_; }
+  Barrier& barrier() { return barrier_; }
+
+ private:
+  Barrier barrier_;
+};
+
+struct FunctionalOptions {
+  double dt = 1e-3;                             // time step (> 0)
+  double kappa = 1.0;                           // diffusivity (> 0)
+  double rho_ref = 1.0;                         // reference density of the entropy (> 0)
+  WidthMetric width_metric = WidthMetric::AsPrinted;  // c_w = 1 (default) or d/2
+  bool optimise_widths = false;                 // gradient with respect to s as well
+  NeighborOptions neighbor;                     // cut-off tolerance and skin
+  void validate() const;                        // throws InvalidArgument naming the field
+};
+
+// F = T + E + B for one diffusive step from the reference state (x^k, s^k).
+class Functional {
+ public:
+  Functional(int dim, FunctionalOptions options, Barrier barrier = {}, Periodicity periodicity = {});
+
+  // Sets the reference configuration (x^k, s^k) and the masses.
+  void set_reference(const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref, const std::vector<double>& m);
+  // Value of F at (x, s) and, if grad != nullptr, its gradient. Rebuilds the
+  // neighbour list when needed (counted in list().build_count()).
+  FunctionalParts evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad);
+  // Same, by the O(n^2) sweep without a neighbour list (for tests).
+  FunctionalParts evaluate_all_pairs(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad);
+  // Explicit velocity of (27) plus barrier: v_r = -(kappa grad rho(x_r)/rho(x_r) + grad Psi(x_r)).
+  void explicit_velocity(const std::vector<Vec3>& x, const std::vector<double>& s, std::vector<Vec3>& v);
+
+  const FunctionalOptions& options() const { return options_; }
+  void set_dt(double dt);
+  int dim() const { return dim_; }
+  const TransportTerm& transport() const { return transport_; }
+  const EntropyTerm& entropy() const { return entropy_; }
+  const BarrierTerm& barrier() const { return barrier_; }
+  BarrierTerm& barrier() { return barrier_; }
+  const NeighborList& list() const { return list_; }
+  NeighborList& list() { return list_; }
+  const Periodicity& periodicity() const { return per_; }
+  const std::vector<double>& masses() const { return m_; }
+
+ private:
+  int dim_;
+  FunctionalOptions options_;
+  TransportTerm transport_;
+  EntropyTerm entropy_;
+  BarrierTerm barrier_;
+  Periodicity per_;
+  NeighborList list_;
+  std::vector<Vec3> x_ref_;
+  std::vector<double> s_ref_, m_;
+  Gradient scratch_;
+};
+
+}  // namespace otfp

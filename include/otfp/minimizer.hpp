@@ -1,0 +1,82 @@
+#pragma once
+// Unconstrained gradient-based minimisation with two run-time selectable
+// backends: Ceres Solver (GradientProblemSolver) and NLopt. Neither library's
+// types appear here; the adapters live in src/ and are linked privately.
+#include <cstddef>
+#include <string>
+#include <vector>
+
+namespace otfp {
+
+// Objective f(z) with gradient, in the solver's (already scaled) variables.
+class Objective {
+ public:
+  virtual ~Objective() = default;
+  virtual std::size_t num_variables() const = 0;
+  // Returns false if f or its gradient is not finite at z (the point is
+  // rejected). `gradient` may be null: then only the value is wanted.
+  virtual bool evaluate(const double* z, double* value, double* gradient) = 0;
+  // Common stopping measure, the same for both backends: the objective decides
+  // how the raw gradient is scaled (the stepper uses a displacement: the
+  // position gradient divided by m_p/dt). Returns the scaled max-norm.
+  virtual double stopping_measure(const double* z, const double* gradient) const;
+};
+
+enum class Backend { Ceres, Nlopt };
+
+enum class Algorithm {
+  Lbfgs,            // Ceres LBFGS / NLopt LD_LBFGS (default for both)
+  Bfgs,             // Ceres BFGS (Ceres only)
+  NonlinearCg,      // Ceres NONLINEAR_CONJUGATE_GRADIENT (Ceres only)
+  TruncatedNewton,  // NLopt LD_TNEWTON_PRECOND_RESTART (NLopt only)
+  Var2,             // NLopt LD_VAR2 (NLopt only)
+  Mma               // NLopt LD_MMA (NLopt only)
+};
+
+std::string to_string(Backend b);
+std::string to_string(Algorithm a);
+Backend backend_from_string(const std::string& s);      // throws InvalidArgument
+Algorithm algorithm_from_string(const std::string& s);  // throws InvalidArgument
+
+struct MinimizerOptions {
+  Backend backend = Backend::Ceres;                // which library runs the minimisation
+  Algorithm algorithm = Algorithm::Lbfgs;          // must be offered by the backend
+  double gradient_tolerance = 1e-6;                // stop when Objective::stopping_measure <= this
+  double function_tolerance = 0.0;                 // relative change of f to stop at (0: off)
+  int max_iterations = 1000;                       // iteration cap (Ceres' default of 50 is too low)
+  int max_evaluations = 5000;                      // cap on value+gradient evaluations
+  int lbfgs_memory = 10;                           // L-BFGS history length (both backends)
+  bool approximate_eigenvalue_scaling = true;      // Ceres use_approximate_eigenvalue_bfgs_scaling
+  // Throws InvalidArgument naming the offending field.
+  void validate() const;
+};
+
+enum class TerminationReason {
+  Converged,          // stopping measure reached gradient_tolerance
+  FunctionTolerance,  // relative change of f below function_tolerance
+  MaxIterations,      // iteration cap without convergence
+  MaxEvaluations,     // evaluation cap without convergence
+  LineSearchFailure,  // backend could not make progress (roundoff, failed line search)
+  NonFinite,          // the objective reported a non-finite value at the start or throughout
+  Failure             // any other backend failure
+};
+std::string to_string(TerminationReason r);
+
+struct MinimizerSummary {
+  TerminationReason reason = TerminationReason::Failure;
+  bool success = false;         // true only for Converged or FunctionTolerance
+  double initial_value = 0.0;
+  double final_value = 0.0;
+  double final_stopping_measure = 0.0;
+  int iterations = 0;
+  int evaluations = 0;          // value+gradient evaluations requested by the backend
+  double solver_seconds = 0.0;  // wall time inside the backend minus time inside the objective
+  double total_seconds = 0.0;
+  std::string message;          // backend's own message
+};
+
+// Minimises the objective from z (in place). On return z holds the best point
+// found (even when not successful; callers decide whether to accept it).
+MinimizerSummary minimize(Objective& objective, std::vector<double>& z, const MinimizerOptions& options);
+
+}  // namespace otfp

@@ -1,0 +1,68 @@
+#pragma once
+// A set of Gaussian blobs ("finite particles") in d = 1, 2 or 3 dimensions.
+#include <cstddef>
+#include <cstdint>
+#include <unordered_map>
+#include <vector>
+
+#include "otfp/types.hpp"
+
+namespace otfp {
+
+using ParticleId = std::int64_t;
+
+// Structure-of-arrays particle storage.
+//
+// The width of blob p is stored as s_p = beta_p^(-1/2) (a length): the
+// transport term of (28) is quadratic in s, and s > 0 is the only constraint.
+// beta(p) = 1 / s_p^2. Positions have three components; those beyond dim() are
+// kept at zero. Removal swaps the last particle into the hole (O(1)); ids stay
+// attached to their particles, index_of() maps an id to its current index.
+class ParticleSet {
+ public:
+  explicit ParticleSet(int dim = 3);
+
+  int dim() const { return dim_; }
+  std::size_t size() const { return x_.size(); }
+  bool empty() const { return x_.empty(); }
+
+  // Appends a particle and returns its new id.
+  ParticleId add(const Vec3& x, double width_s, double mass, double birth_time = 0.0);
+  // Removes the particle at `index`; the last particle takes its index.
+  void remove(std::size_t index);
+  // Removes several particles given by index (any order, no duplicates).
+  void remove_indices(std::vector<std::size_t> indices);
+  void clear();
+  void reserve(std::size_t n);
+
+  // Index of the particle with this id, or -1 if it is gone.
+  std::ptrdiff_t index_of(ParticleId id) const;
+
+  std::vector<Vec3>& positions() { return x_; }
+  const std::vector<Vec3>& positions() const { return x_; }
+  std::vector<double>& widths() { return s_; }  // s = beta^-1/2
+  const std::vector<double>& widths() const { return s_; }
+  std::vector<double>& masses() { return m_; }
+  const std::vector<double>& masses() const { return m_; }
+  const std::vector<double>& birth_times() const { return birth_; }
+  std::vector<double>& birth_times() { return birth_; }
+  const std::vector<ParticleId>& ids() const { return id_; }
+
+  double beta(std::size_t p) const { return 1.0 / (s_[p] * s_[p]); }
+  void set_beta(std::size_t p, double beta);
+  double total_mass() const;
+  ParticleId next_id() const { return next_id_; }
+
+  // Sets every width to s = beta^-1/2.
+  void set_uniform_beta(double beta);
+
+ private:
+  int dim_;
+  std::vector<Vec3> x_;
+  std::vector<double> s_, m_, birth_;
+  std::vector<ParticleId> id_;
+  std::unordered_map<ParticleId, std::size_t> index_;
+  ParticleId next_id_ = 0;
+};
+
+}  // namespace otfp

@@ -1,0 +1,48 @@
+#pragma once
+// Basic types shared by all of otfp.
+#include <Eigen/Core>
+#include <cstdint>
+#include <limits>
+#include <stdexcept>
+#include <string>
+
+namespace otfp {
+
+// Points always have three components; in d < 3 the unused ones are zero.
+using Vec3 = Eigen::Vector3d;
+
+// Axis-aligned bounding box.
+struct Aabb {
+  Vec3 lo = Vec3::Zero();
+  Vec3 hi = Vec3::Zero();
+  Vec3 extent() const { return hi - lo; }
+};
+
+// Error for invalid user input: the message names the field, the value and the rule.
+class InvalidArgument : public std::invalid_argument {
+ public:
+  using std::invalid_argument::invalid_argument;
+};
+
+// Throws InvalidArgument("<field> = <value>: <rule>") unless ok.
+void require(bool ok, const std::string& field, double value, const std::string& rule);
+void require(bool ok, const std::string& field, const std::string& value, const std::string& rule);
+
+// Reproducible random numbers: SplitMix64-seeded xoshiro256**; the uniform
+// doubles are made from the top 53 bits, so a seed gives the same stream on
+// every platform (std::uniform_real_distribution does not promise that).
+class Rng {
+ public:
+  explicit Rng(std::uint64_t seed = 0x5eed);
+  std::uint64_t next_u64();
+  double uniform();                        // in [0, 1)
+  double uniform(double a, double b);      // in [a, b)
+  double normal();                         // standard normal (Box-Muller)
+  std::uint64_t below(std::uint64_t n);    // uniform integer in [0, n)
+ private:
+  std::uint64_t s_[4];
+  bool has_spare_ = false;
+  double spare_ = 0.0;
+};
+
+}  // namespace otfp

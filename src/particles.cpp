@@ -1,0 +1,96 @@
+#include "otfp/particles.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <functional>
+
+namespace otfp {
+
+ParticleSet::ParticleSet(int dim) : dim_(dim) {
+  require(dim >= 1 && dim <= 3, "dim", dim, "must be 1, 2 or 3");
+}
+
+ParticleId ParticleSet::add(const Vec3& x, double width_s, double mass, double birth_time) {
+  require(std::isfinite(width_s) && width_s > 0.0, "particle width s", width_s, "must be finite and > 0");
+  require(std::isfinite(mass) && mass > 0.0, "particle mass", mass, "must be finite and > 0");
+  require(x.allFinite(), "particle position", x.norm(), "must be finite");
+  Vec3 y = x;
+  for (int k = dim_; k < 3; ++k) y[k] = 0.0;
+  const ParticleId id = next_id_++;
+  index_.emplace(id, x_.size());
+  x_.push_back(y);
+  s_.push_back(width_s);
+  m_.push_back(mass);
+  birth_.push_back(birth_time);
+  id_.push_back(id);
+  return id;
+}
+
+void ParticleSet::remove(std::size_t index) {
+  require(index < size(), "particle index", static_cast<double>(index), "must be < number of particles");
+  const std::size_t last = size() - 1;
+  index_.erase(id_[index]);
+  if (index != last) {
+    x_[index] = x_[last];
+    s_[index] = s_[last];
+    m_[index] = m_[last];
+    birth_[index] = birth_[last];
+    id_[index] = id_[last];
+    index_[id_[index]] = index;
+  }
+  x_.pop_back();
+  s_.pop_back();
+  m_.pop_back();
+  birth_.pop_back();
+  id_.pop_back();
+}
+
+void ParticleSet::remove_indices(std::vector<std::size_t> indices) {
+  // Highest index first, so that swapping the last particle in never moves a
+  // particle that is still to be removed.
+  std::sort(indices.begin(), indices.end(), std::greater<>());
+  require(std::adjacent_find(indices.begin(), indices.end()) == indices.end(), "particle indices", 0.0,
+          "must not contain duplicates");
+  for (std::size_t i : indices) remove(i);
+}
+
+void ParticleSet::clear() {
+  x_.clear();
+  s_.clear();
+  m_.clear();
+  birth_.clear();
+  id_.clear();
+  index_.clear();
+}
+
+void ParticleSet::reserve(std::size_t n) {
+  x_.reserve(n);
+  s_.reserve(n);
+  m_.reserve(n);
+  birth_.reserve(n);
+  id_.reserve(n);
+  index_.reserve(n);
+}
+
+std::ptrdiff_t ParticleSet::index_of(ParticleId id) const {
+  auto it = index_.find(id);
+  return it == index_.end() ? -1 : static_cast<std::ptrdiff_t>(it->second);
+}
+
+void ParticleSet::set_beta(std::size_t p, double beta) {
+  require(std::isfinite(beta) && beta > 0.0, "beta", beta, "must be finite and > 0");
+  s_[p] = 1.0 / std::sqrt(beta);
+}
+
+void ParticleSet::set_uniform_beta(double beta) {
+  require(std::isfinite(beta) && beta > 0.0, "beta", beta, "must be finite and > 0");
+  std::fill(s_.begin(), s_.end(), 1.0 / std::sqrt(beta));
+}
+
+double ParticleSet::total_mass() const {
+  double m = 0.0;
+  for (double v : m_) m += v;
+  return m;
+}
+
+}  // namespace otfp

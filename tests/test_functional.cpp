@@ -1,0 +1,289 @@
+// Functional (28): finite-difference gradient checks, accelerated path against
+// the O(n^2) sweep and against an independent naive evaluation, the
+// single-blob width law and thread-count independence.
+#include <gtest/gtest.h>
+#include <omp.h>
+
+#include <cmath>
+
+#include "otfp/functional.hpp"
+#include "otfp/geometry.hpp"
+#include "test_support.hpp"
+
+using namespace otfp;
+using otfp::testing::central_difference;
+using otfp::testing::random_cloud;
+
+namespace {
+
+struct Case {
+  int dim;
+  bool widths;
+  WidthMetric metric;
+  bool periodic;
+};
+
+// Sets up a functional on a random cloud that spills out of a ball (barrier
+// active) or lives in a periodic box, with a reference configuration that
+// differs from the evaluation point in x and s.
+struct Fixture {
+  ParticleSet ps;
+  std::vector<Vec3> x;
+  std::vector<double> s;
+  std::unique_ptr<Functional> f;
+  DomainPtr domain;
+};
+
+Fixture make_fixture(const Case& c, std::size_t n = 60, std::uint64_t seed = 7) {
+  Fixture fx;
+  const double s0 = 0.25;
+  if (c.periodic) {
+    fx.domain = make_periodic_box(c.dim, Vec3::Zero(), Vec3::Constant(3.2));
+    fx.ps = random_cloud(c.dim, n, 0.0, 3.2, s0, 0.3, 0.02, seed);
+  } else {
+    fx.domain = make_ball(c.dim, Vec3::Zero(), 1.0);
+    fx.ps = random_cloud(c.dim, n, -1.15, 1.15, s0, 0.3, 0.02, seed);  // corners lie outside: barrier active
+  }
+  FunctionalOptions o;
+  o.dt = 0.01;
+  o.kappa = 0.7;
+  o.rho_ref = 0.3;
+  o.width_metric = c.metric;
+  o.optimise_widths = c.widths;
+  Barrier barrier = c.periodic ? Barrier() : Barrier(fx.domain, 50.0);
+  fx.f = std::make_unique<Functional>(c.dim, o, barrier, Periodicity::from_domain(*fx.domain));
+  fx.f->set_reference(fx.ps.positions(), fx.ps.widths(), fx.ps.masses());
+  Rng rng(seed + 1);
+  fx.x = fx.ps.positions();
+  fx.s = fx.ps.widths();
+  for (auto& p : fx.x)
+    for (int k = 0; k < c.dim; ++k) p[k] += 0.05 * rng.normal();
+  for (auto& v : fx.s) v *= 1.0 + 0.1 * rng.uniform(-1.0, 1.0);
+  return fx;
+}
+
+void check_gradient(const Case& c) {
+  Fixture fx = make_fixture(c);
+  Gradient g;
+  fx.f->evaluate(fx.x, fx.s, &g);
+  double gmax = 0.0;
+  for (const auto& v : g.x) gmax = std::max(gmax, v.cwiseAbs().maxCoeff());
+  for (double v : g.s) gmax = std::max(gmax, std::abs(v));
+  ASSERT_GT(gmax, 1e-2) << "gradient is trivially zero";
+  if (!c.periodic) {
+    // The barrier must contribute: some particle is outside the ball.
+    double outside = 0.0;
+    for (const auto& p : fx.x) outside = std::max(outside, fx.domain->signed_distance(p));
+    ASSERT_GT(outside, 0.02);
+  }
+  const double h = 1e-5;
+  const double tol = 1e-6 * gmax;  // scale-aware: relative to the largest gradient entry
+  double worst = 0.0;
+  for (std::size_t p = 0; p < fx.x.size(); ++p) {
+    for (int k = 0; k < c.dim; ++k) {
+      auto fk = [&](double e) {
+        auto x = fx.x;
+        x[p][k] += e;
+        return fx.f->evaluate(x, fx.s, nullptr).total();
+      };
+      const double fd = central_difference(fk, h);
+      worst = std::max(worst, std::abs(fd - g.x[p][k]));
+      EXPECT_NEAR(g.x[p][k], fd, tol) << "d=" << c.dim << " particle " << p << " axis " << k;
+    }
+    for (int k = c.dim; k < 3; ++k) EXPECT_EQ(g.x[p][k], 0.0);
+    if (c.widths) {
+      auto fs = [&](double e) {
+        auto s = fx.s;
+        s[p] += e;
+        return fx.f->evaluate(fx.x, s, nullptr).total();
+      };
+      const double fd = central_difference(fs, h);
+      EXPECT_NEAR(g.s[p], fd, tol) << "width of particle " << p;
+    }
+  }
+  EXPECT_EQ(fx.f->list().build_count(), 1) << "finite differences should not trigger list rebuilds";
+}
+
+}  // namespace
+
+TEST(FunctionalGradient, PositionsMatchFiniteDifferences1D) { check_gradient({1, false, WidthMetric::AsPrinted, false}); }
+TEST(FunctionalGradient, PositionsMatchFiniteDifferences2D) { check_gradient({2, false, WidthMetric::AsPrinted, false}); }
+TEST(FunctionalGradient, PositionsMatchFiniteDifferences3D) { check_gradient({3, false, WidthMetric::AsPrinted, false}); }
+TEST(FunctionalGradient, WidthsMatchFiniteDifferences1DExactMetric) {
+  check_gradient({1, true, WidthMetric::ExactGaussian, false});
+}
+TEST(FunctionalGradient, WidthsMatchFiniteDifferences2D) { check_gradient({2, true, WidthMetric::AsPrinted, false}); }
+TEST(FunctionalGradient, WidthsMatchFiniteDifferences3DAsPrinted) {
+  check_gradient({3, true, WidthMetric::AsPrinted, false});
+}
+TEST(FunctionalGradient, WidthsMatchFiniteDifferences3DExactMetric) {
+  check_gradient({3, true, WidthMetric::ExactGaussian, false});
+}
+TEST(FunctionalGradient, PeriodicImages2D) { check_gradient({2, true, WidthMetric::AsPrinted, true}); }
+TEST(FunctionalGradient, PeriodicImages3D) { check_gradient({3, true, WidthMetric::ExactGaussian, true}); }
+
+TEST(FunctionalTerms, EachTermGradientMatchesFiniteDifferences) {
+  const int dim = 3;
+  ParticleSet ps = random_cloud(dim, 30, -1.1, 1.1, 0.3, 0.3, 0.05, 11);
+  DomainPtr ball = make_ball(dim, Vec3::Zero(), 1.0);
+  const auto& x = ps.positions();
+  const auto& s = ps.widths();
+  const auto& m = ps.masses();
+  std::vector<Vec3> xr = x;
+  std::vector<double> sr = s;
+  for (auto& p : xr) p += Vec3(0.03, -0.02, 0.01);
+  for (auto& v : sr) v *= 0.9;
+  TransportTerm T(0.02, 1.5);
+  EntropyTerm E(dim, 1.3, 0.5);
+  BarrierTerm B(Barrier(ball, 20.0));
+  NeighborList list;
+  list.build(x, s, Periodicity::none(dim));
+
+  Gradient gT, gE, gB;
+  gT.resize(x.size(), true);
+  gE.resize(x.size(), true);
+  gB.resize(x.size(), false);
+  T.evaluate(x, s, m, xr, sr, &gT);
+  E.evaluate(x, s, m, list, &gE);
+  B.evaluate(x, m, &gB);
+  const double h = 1e-5;
+  for (std::size_t p = 0; p < x.size(); p += 3) {
+    for (int k = 0; k < dim; ++k) {
+      auto shifted = [&](double e) {
+        auto y = x;
+        y[p][k] += e;
+        return y;
+      };
+      EXPECT_NEAR(gT.x[p][k], central_difference([&](double e) { return T.evaluate(shifted(e), s, m, xr, sr, nullptr); }, h), 1e-6 * (1 + std::abs(gT.x[p][k])));
+      EXPECT_NEAR(gE.x[p][k], central_difference([&](double e) { return E.evaluate(shifted(e), s, m, list, nullptr); }, h), 1e-6 * (1 + std::abs(gE.x[p][k])));
+      EXPECT_NEAR(gB.x[p][k], central_difference([&](double e) { return B.evaluate(shifted(e), m, nullptr); }, h), 1e-6 * (1 + std::abs(gB.x[p][k])));
+    }
+    auto wider = [&](double e) {
+      auto t = s;
+      t[p] += e;
+      return t;
+    };
+    EXPECT_NEAR(gT.s[p], central_difference([&](double e) { return T.evaluate(x, wider(e), m, xr, sr, nullptr); }, h), 1e-6 * (1 + std::abs(gT.s[p])));
+    EXPECT_NEAR(gE.s[p], central_difference([&](double e) { return E.evaluate(x, wider(e), m, list, nullptr); }, h), 1e-6 * (1 + std::abs(gE.s[p])));
+  }
+}
+
+// Independent naive evaluation of (28) with std::exp and no neighbour list.
+double naive_functional(int dim, const ParticleSet& ps, const std::vector<Vec3>& x, const std::vector<double>& s,
+                        double dt, double c_w, double kappa, double rho_ref, const Barrier& barrier) {
+  double F = 0.0;
+  for (std::size_t p = 0; p < x.size(); ++p) {
+    const double m = ps.masses()[p];
+    F += m / (2 * dt) * ((x[p] - ps.positions()[p]).squaredNorm() + c_w * std::pow(s[p] - ps.widths()[p], 2));
+    double rho = 0.0;
+    for (std::size_t q = 0; q < x.size(); ++q) {
+      const double beta = 1.0 / (s[q] * s[q]);
+      rho += ps.masses()[q] * std::pow(beta / M_PI, dim / 2.0) * std::exp(-beta * (x[p] - x[q]).squaredNorm());
+    }
+    F += kappa * m * std::log(rho / rho_ref);
+    F += m * barrier.value(x[p]);
+  }
+  return F;
+}
+
+TEST(FunctionalAccelerated, MatchesAllPairsAndNaiveEvaluation) {
+  for (int dim = 1; dim <= 3; ++dim) {
+    Fixture fx = make_fixture({dim, true, WidthMetric::ExactGaussian, false}, 400, 21);
+    Gradient g_list, g_all;
+    const FunctionalParts a = fx.f->evaluate(fx.x, fx.s, &g_list);
+    const FunctionalParts b = fx.f->evaluate_all_pairs(fx.x, fx.s, &g_all);
+    // The list drops pairs whose kernel is below 1e-8 of its peak.
+    const double scale = std::abs(b.entropy) + std::abs(b.transport) + 1.0;
+    EXPECT_NEAR(a.total(), b.total(), 1e-7 * scale) << "d=" << dim;
+    EXPECT_NEAR(a.entropy, b.entropy, 1e-7 * scale);
+    EXPECT_EQ(a.transport, b.transport);
+    EXPECT_EQ(a.barrier, b.barrier);
+    double gmax = 0.0, diff = 0.0;
+    for (std::size_t p = 0; p < fx.x.size(); ++p) {
+      gmax = std::max(gmax, g_all.x[p].cwiseAbs().maxCoeff());
+      diff = std::max(diff, (g_list.x[p] - g_all.x[p]).cwiseAbs().maxCoeff());
+      diff = std::max(diff, std::abs(g_list.s[p] - g_all.s[p]));
+    }
+    EXPECT_LE(diff, 1e-6 * gmax) << "d=" << dim;
+    ASSERT_GT(fx.f->list().num_entries(), 0u);
+    EXPECT_LT(fx.f->list().num_entries(), fx.x.size() * (fx.x.size() - 1)) << "list should be a real subset";
+
+    const double c_w = width_metric_coefficient(WidthMetric::ExactGaussian, dim);
+    const double naive = naive_functional(dim, fx.ps, fx.x, fx.s, 0.01, c_w, 0.7, 0.3, fx.f->barrier().barrier());
+    EXPECT_NEAR(b.total(), naive, 1e-10 * (std::abs(naive) + 1.0)) << "d=" << dim;
+  }
+}
+
+TEST(FunctionalAccelerated, ResultsDoNotDependOnThreadCount) {
+  // Two identical set-ups, each building its list and evaluating with its own thread count.
+  Fixture fx = make_fixture({3, true, WidthMetric::AsPrinted, false}, 3000, 5);
+  Fixture fy = make_fixture({3, true, WidthMetric::AsPrinted, false}, 3000, 5);
+  const int saved = omp_get_max_threads();
+  omp_set_num_threads(1);
+  Gradient g1, g2;
+  const double f1 = fx.f->evaluate(fx.x, fx.s, &g1).total();
+  omp_set_num_threads(2);
+  const double f2 = fy.f->evaluate(fy.x, fy.s, &g2).total();
+  omp_set_num_threads(saved);
+  EXPECT_EQ(fx.f->list().indices(), fy.f->list().indices());
+  EXPECT_EQ(f1, f2);
+  for (std::size_t p = 0; p < fx.x.size(); ++p) {
+    EXPECT_EQ(g1.x[p], g2.x[p]);
+    EXPECT_EQ(g1.s[p], g2.s[p]);
+  }
+}
+
+// A single free blob: dF/ds = 0 gives c_w (s - s^k) s = kappa d dt (METHOD-NOTES 2.3).
+TEST(SingleBlob, BruteForceWidthMinimiserSatisfiesClosedForm) {
+  for (int dim = 1; dim <= 3; ++dim) {
+    for (WidthMetric metric : {WidthMetric::AsPrinted, WidthMetric::ExactGaussian}) {
+      const double sk = 0.2, dt = 0.01, kappa = 0.8;
+      ParticleSet ps(dim);
+      ps.add(Vec3::Zero(), sk, 1.3);
+      FunctionalOptions o;
+      o.dt = dt;
+      o.kappa = kappa;
+      o.width_metric = metric;
+      o.optimise_widths = true;
+      Functional f(dim, o);
+      f.set_reference(ps.positions(), ps.widths(), ps.masses());
+      auto F = [&](double s) { return f.evaluate(ps.positions(), {s}, nullptr).total(); };
+      // Brute force: scan, then golden-section refinement.
+      double best = sk, fbest = F(sk);
+      for (int i = 1; i <= 4000; ++i) {
+        const double s = sk * (0.5 + 2.5 * i / 4000.0);
+        const double v = F(s);
+        if (v < fbest) { fbest = v; best = s; }
+      }
+      double a = best - 2.5 * sk / 4000.0, b = best + 2.5 * sk / 4000.0;
+      const double gr = (std::sqrt(5.0) - 1.0) / 2.0;
+      for (int it = 0; it < 200; ++it) {
+        const double c = b - gr * (b - a), d = a + gr * (b - a);
+        if (F(c) < F(d)) b = d; else a = c;
+      }
+      const double s_star = 0.5 * (a + b);
+      const double c_w = width_metric_coefficient(metric, dim);
+      EXPECT_NEAR(c_w * (s_star - sk) * s_star, kappa * dim * dt, 1e-6 * kappa * dim * dt)
+          << "d=" << dim << " c_w=" << c_w;
+      const double root = 0.5 * (sk + std::sqrt(sk * sk + 4.0 * kappa * dim * dt / c_w));
+      EXPECT_NEAR(s_star, root, 1e-6 * root);
+    }
+  }
+}
+
+TEST(FunctionalOptions, ValidateNamesTheField) {
+  FunctionalOptions o;
+  o.dt = 0.0;
+  try {
+    o.validate();
+    FAIL() << "dt = 0 accepted";
+  } catch (const InvalidArgument& e) {
+    EXPECT_NE(std::string(e.what()).find("dt"), std::string::npos);
+  }
+  o.dt = 0.1;
+  o.kappa = std::nan("");
+  EXPECT_THROW(o.validate(), InvalidArgument);
+  o.kappa = 1.0;
+  o.neighbor.kernel_tolerance = 2.0;
+  EXPECT_THROW(o.validate(), InvalidArgument);
+}

@@ -1,0 +1,178 @@
+// Neighbour search: the Verlet list against brute force on random clouds,
+// after moves within the skin, after insertions and deletions, with periodic
+// images and with different widths; the cut-off comes from the kernel tolerance.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <set>
+
+#include "otfp/density.hpp"
+#include "otfp/geometry.hpp"
+#include "otfp/neighbor_list.hpp"
+#include "test_support.hpp"
+
+using namespace otfp;
+using otfp::testing::random_cloud;
+
+namespace {
+
+using PairSet = std::set<std::pair<std::uint32_t, std::uint32_t>>;
+
+PairSet list_pairs(const NeighborList& nl) {
+  PairSet out;
+  for (std::size_t p = 0; p < nl.size(); ++p)
+    for (std::uint32_t k = nl.offsets()[p]; k < nl.offsets()[p + 1]; ++k)
+      out.emplace(static_cast<std::uint32_t>(p), nl.indices()[k]);
+  return out;
+}
+
+PairSet brute_pairs(const std::vector<Vec3>& x, double radius, const Periodicity& per) {
+  PairSet out;
+  for (std::uint32_t p = 0; p < x.size(); ++p)
+    for (std::uint32_t q = 0; q < x.size(); ++q)
+      if (p != q && per.displacement(x[p], x[q]).norm() <= radius) out.emplace(p, q);
+  return out;
+}
+
+}  // namespace
+
+TEST(NeighborList, CutoffComesFromKernelTolerance) {
+  const double s = 0.1;
+  const double rc = cutoff_radius(s, 1e-8);
+  EXPECT_NEAR(std::exp(-rc * rc / (s * s)), 1e-8, 1e-20);
+  EXPECT_GT(rc, 4.0 * s);  // far beyond 1/sqrt(beta) = s
+}
+
+TEST(NeighborList, MatchesBruteForceOnRandomClouds) {
+  for (int dim = 1; dim <= 3; ++dim) {
+    ParticleSet ps = random_cloud(dim, 1500, -1.0, 1.0, 0.04, 0.4, 1.0, 100 + dim);
+    NeighborList nl;
+    nl.build(ps.positions(), ps.widths(), Periodicity::none(dim));
+    const PairSet expected = brute_pairs(ps.positions(), nl.list_radius(), Periodicity::none(dim));
+    ASSERT_GT(expected.size(), ps.size()) << "cloud too sparse for a meaningful test";
+    EXPECT_EQ(list_pairs(nl), expected) << "d=" << dim;
+    // The radius is that of the widest blob plus the skin.
+    double smax = *std::max_element(ps.widths().begin(), ps.widths().end());
+    EXPECT_NEAR(nl.cutoff(), cutoff_radius(smax, 1e-8), 1e-15);
+  }
+}
+
+TEST(NeighborList, PeriodicImagesMatchBruteForce) {
+  for (int dim = 1; dim <= 3; ++dim) {
+    DomainPtr box = make_periodic_box(dim, Vec3::Constant(-1.0), Vec3::Constant(1.0));
+    ParticleSet ps = random_cloud(dim, 1200, -1.0, 1.0, 0.05, 0.2, 1.0, 200 + dim);
+    const Periodicity per = Periodicity::from_domain(*box);
+    NeighborList nl;
+    nl.build(ps.positions(), ps.widths(), per);
+    const PairSet expected = brute_pairs(ps.positions(), nl.list_radius(), per);
+    EXPECT_EQ(list_pairs(nl), expected) << "d=" << dim;
+    // Some pairs must actually cross the box edge.
+    int crossing = 0;
+    for (auto [p, q] : expected)
+      if ((ps.positions()[p] - ps.positions()[q]).norm() > nl.list_radius()) ++crossing;
+    EXPECT_GT(crossing, 0);
+  }
+}
+
+TEST(NeighborList, SmallPeriodicBoxWithFewCellsHasNoDuplicates) {
+  DomainPtr box = make_periodic_box(3, Vec3::Zero(), Vec3::Constant(1.0));
+  ParticleSet ps = random_cloud(3, 300, 0.0, 1.0, 0.05, 0.0, 1.0, 9);
+  NeighborOptions o;
+  o.skin = 0.2;  // radius ~0.41: two cells per axis, where -1 and +1 alias
+  NeighborList nl(o);
+  nl.build(ps.positions(), ps.widths(), Periodicity::from_domain(*box));
+  const PairSet got = list_pairs(nl);
+  EXPECT_EQ(got.size(), nl.num_entries()) << "duplicate entries";
+  EXPECT_EQ(got, brute_pairs(ps.positions(), nl.list_radius(), Periodicity::from_domain(*box)));
+}
+
+TEST(NeighborList, RejectsPeriodicBoxSmallerThanTwiceTheRadius) {
+  DomainPtr box = make_periodic_box(2, Vec3::Zero(), Vec3::Constant(0.3));
+  ParticleSet ps = random_cloud(2, 10, 0.0, 0.3, 0.05, 0.0, 1.0, 3);
+  NeighborList nl;
+  EXPECT_THROW(nl.build(ps.positions(), ps.widths(), Periodicity::from_domain(*box)), InvalidArgument);
+}
+
+TEST(NeighborList, StaysValidForMovesWithinHalfTheSkin) {
+  const int dim = 3;
+  ParticleSet ps = random_cloud(dim, 2000, 0.0, 1.0, 0.03, 0.3, 1.0, 42);
+  NeighborList nl;
+  nl.build(ps.positions(), ps.widths(), Periodicity::none(dim));
+  const PairSet built = list_pairs(nl);
+  Rng rng(4);
+  auto x = ps.positions();
+  for (auto& p : x) {
+    Vec3 dir(rng.normal(), rng.normal(), rng.normal());
+    p += (0.49 * nl.skin() * rng.uniform()) * dir.normalized();
+  }
+  EXPECT_FALSE(nl.needs_rebuild(x, ps.widths()));
+  // Every pair now inside the cut-off is still in the list.
+  const PairSet inside = brute_pairs(x, nl.cutoff(), Periodicity::none(dim));
+  for (const auto& pq : inside) EXPECT_TRUE(built.count(pq)) << pq.first << "," << pq.second;
+  // Moving one particle by more than half the skin asks for a rebuild.
+  x = ps.positions();
+  x[17] += Vec3(0.51 * nl.skin(), 0.0, 0.0);
+  EXPECT_TRUE(nl.needs_rebuild(x, ps.widths()));
+  // So does widening a blob enough to grow the cut-off past the skin.
+  auto s = ps.widths();
+  x = ps.positions();
+  s[3] = *std::max_element(s.begin(), s.end()) * 1.5;
+  EXPECT_TRUE(nl.needs_rebuild(x, s));
+}
+
+TEST(NeighborList, RebuildAfterInsertionsAndDeletionsMatchesBruteForce) {
+  const int dim = 2;
+  ParticleSet ps = random_cloud(dim, 800, 0.0, 1.0, 0.02, 0.3, 1.0, 77);
+  NeighborList nl;
+  nl.build(ps.positions(), ps.widths(), Periodicity::none(dim));
+  Rng rng(8);
+  for (int i = 0; i < 50; ++i) ps.add(Vec3(rng.uniform(), rng.uniform(), 0.0), 0.02, 1.0);
+  std::vector<std::size_t> gone;
+  for (std::size_t i = 0; i < 800; i += 7) gone.push_back(i);
+  ps.remove_indices(gone);
+  EXPECT_TRUE(nl.needs_rebuild(ps.positions(), ps.widths()));
+  nl.build(ps.positions(), ps.widths(), Periodicity::none(dim));
+  EXPECT_EQ(list_pairs(nl), brute_pairs(ps.positions(), nl.list_radius(), Periodicity::none(dim)));
+  EXPECT_EQ(nl.build_count(), 2);
+}
+
+TEST(BlobDensity, CellListMatchesAllPairs) {
+  for (int dim = 1; dim <= 3; ++dim) {
+    ParticleSet ps = random_cloud(dim, 1000, -1.0, 1.0, 0.08, 0.4, 0.01, 300 + dim);
+    std::vector<Vec3> points;
+    Rng rng(5);
+    for (int i = 0; i < 200; ++i) {
+      Vec3 y = Vec3::Zero();
+      for (int k = 0; k < dim; ++k) y[k] = rng.uniform(-1.3, 1.3);
+      points.push_back(y);
+    }
+    std::vector<double> r1, r2;
+    std::vector<Vec3> g1, g2;
+    blob_density(ps, points, Periodicity::none(dim), 1e-10, r1, &g1);
+    blob_density_all_pairs(ps, points, Periodicity::none(dim), r2, &g2);
+    double rmax = 0.0, gmax = 0.0;
+    for (std::size_t i = 0; i < points.size(); ++i) {
+      rmax = std::max(rmax, r2[i]);
+      gmax = std::max(gmax, g2[i].norm());
+    }
+    ASSERT_GT(rmax, 0.0);
+    for (std::size_t i = 0; i < points.size(); ++i) {
+      EXPECT_NEAR(r1[i], r2[i], 1e-8 * rmax);
+      EXPECT_LE((g1[i] - g2[i]).norm(), 1e-7 * gmax);
+    }
+  }
+}
+
+TEST(BlobDensity, IntegratesToTotalMass1D) {
+  // The density of (29) carries the particles' mass: a Riemann sum over a wide interval.
+  ParticleSet ps = random_cloud(1, 50, -1.0, 1.0, 0.1, 0.5, 0.3, 12);
+  std::vector<Vec3> pts;
+  const double h = 1e-3;
+  for (double t = -3.0; t <= 3.0; t += h) pts.emplace_back(t, 0.0, 0.0);
+  std::vector<double> rho;
+  blob_density(ps, pts, Periodicity::none(1), 1e-14, rho, nullptr);
+  double mass = 0.0;
+  for (double v : rho) mass += v * h;
+  EXPECT_NEAR(mass, ps.total_mass(), 1e-9 * ps.total_mass());
+}

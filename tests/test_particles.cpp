@@ -1,0 +1,64 @@
+#include <gtest/gtest.h>
+
+#include "otfp/particles.hpp"
+
+using namespace otfp;
+
+TEST(ParticleSet, IdsStayStableAcrossRemovals) {
+  ParticleSet ps(2);
+  std::vector<ParticleId> ids;
+  for (int i = 0; i < 10; ++i) ids.push_back(ps.add(Vec3(i, 2.0 * i, 5.0), 0.1 + i, 1.0 + i, 0.5 * i));
+  EXPECT_EQ(ps.positions()[3][2], 0.0) << "coordinates beyond dim are zeroed";
+  ps.remove(2);
+  ps.remove_indices({0, 5});
+  EXPECT_EQ(ps.size(), 7u);
+  for (ParticleId id : {ids[0], ids[2], ids[5]}) EXPECT_EQ(ps.index_of(id), -1);
+  for (int i : {1, 3, 4, 6, 7, 8, 9}) {
+    const auto k = ps.index_of(ids[i]);
+    ASSERT_GE(k, 0);
+    EXPECT_EQ(ps.positions()[k][0], i);
+    EXPECT_EQ(ps.widths()[k], 0.1 + i);
+    EXPECT_EQ(ps.masses()[k], 1.0 + i);
+    EXPECT_EQ(ps.birth_times()[k], 0.5 * i);
+    EXPECT_EQ(ps.ids()[k], ids[i]);
+  }
+  const ParticleId fresh = ps.add(Vec3::Zero(), 1.0, 1.0);
+  EXPECT_EQ(fresh, 10) << "ids are never reused";
+}
+
+TEST(ParticleSet, WidthIsInverseSqrtBeta) {
+  ParticleSet ps(3);
+  ps.add(Vec3::Zero(), 0.5, 1.0);
+  EXPECT_DOUBLE_EQ(ps.beta(0), 4.0);
+  ps.set_beta(0, 100.0);
+  EXPECT_DOUBLE_EQ(ps.widths()[0], 0.1);
+}
+
+TEST(ParticleSet, RejectsBadInput) {
+  ParticleSet ps(3);
+  EXPECT_THROW(ps.add(Vec3::Zero(), -1.0, 1.0), InvalidArgument);
+  EXPECT_THROW(ps.add(Vec3::Zero(), 1.0, 0.0), InvalidArgument);
+  EXPECT_THROW(ps.add(Vec3(std::nan(""), 0, 0), 1.0, 1.0), InvalidArgument);
+  EXPECT_THROW(ParticleSet(4), InvalidArgument);
+  EXPECT_THROW(ps.remove_indices({0, 0}), InvalidArgument);
+}
+
+TEST(Rng, IsReproducibleAndUniform) {
+  Rng a(123), b(123), c(124);
+  for (int i = 0; i < 100; ++i) EXPECT_EQ(a.next_u64(), b.next_u64());
+  EXPECT_NE(a.next_u64(), c.next_u64());
+  Rng r(5);
+  const int n = 200000;
+  int below_quarter = 0;
+  double sum = 0.0, sum2 = 0.0;
+  for (int i = 0; i < n; ++i) {
+    if (r.uniform() < 0.25) ++below_quarter;
+    const double z = r.normal();
+    sum += z;
+    sum2 += z * z;
+  }
+  const double sigma = std::sqrt(n * 0.25 * 0.75);
+  EXPECT_NEAR(below_quarter, 0.25 * n, 3 * sigma);
+  EXPECT_NEAR(sum / n, 0.0, 3.0 / std::sqrt(n));
+  EXPECT_NEAR(sum2 / n, 1.0, 3.0 * std::sqrt(2.0 / n));
+}
