@@ -8,8 +8,11 @@
 
 namespace otfp::detail {
 
-inline double exp_nonpositive(double a) {
-  a = a < -700.0 ? -700.0 : a;
+__attribute__((always_inline)) inline double exp_nonpositive(double a) {
+  // Arithmetic blend rather than a select: GCC 12 does not vectorise this loop
+  // body when the clamp is written as a conditional expression.
+  const double below = a < -700.0 ? 1.0 : 0.0;
+  a += below * (-700.0 - a);
   constexpr double kLog2e = 1.4426950408889634;
   constexpr double kLn2Hi = 6.93147180369123816490e-01;
   constexpr double kLn2Lo = 1.90821492927058770002e-10;

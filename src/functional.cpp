@@ -4,7 +4,7 @@
 
 #include <cmath>
 
-#include "fast_exp.hpp"
+#include "pair_kernels.hpp"
 
 namespace otfp {
 
@@ -57,31 +57,19 @@ EntropyTerm::EntropyTerm(int dim, double kappa, double rho_ref) : dim_(dim), kap
 
 namespace {
 
-// Rows of a neighbour list.
-struct ListRows {
-  const std::uint32_t* off;
-  const std::uint32_t* idx;
-  std::uint32_t begin(std::size_t p) const { return off[p]; }
-  std::uint32_t end(std::size_t p) const { return off[p + 1]; }
-  std::uint32_t at(std::uint32_t k) const { return idx[k]; }
-  bool skip(std::size_t, std::uint32_t) const { return false; }
-};
-
-// Every other particle: the O(n^2) reference.
-struct AllRows {
-  std::uint32_t n;
-  std::uint32_t begin(std::size_t) const { return 0; }
-  std::uint32_t end(std::size_t) const { return n; }
-  std::uint32_t at(std::uint32_t k) const { return k; }
-  bool skip(std::size_t p, std::uint32_t q) const { return p == q; }
-};
+// Assembles dE/dx_r and dE/ds_r from the sweep results:
+//   dE/dx_r = kappa (m_r/rho_r) grad rho(x_r)                      (term 1)
+//           + 2 kappa beta_r sum_p (m_p/rho_p) w_pr (x_p - x_r)      (term 2)
+//   dE/dbeta_r = kappa sum_p (m_p/rho_p) w_pr (d/(2 beta_r) - |x_p - x_r|^2), ds/dbeta = -s^3/2.
+inline void assemble(double kappa, double half_d, double a_r, double beta_r, const Vec3& grad_rho, const Vec3& gathered,
+                     double wsum, double wr2, Vec3& gx, double* gs) {
+  gx = kappa * (a_r * grad_rho + 2.0 * beta_r * gathered);
+  if (gs) *gs = kappa * (half_d / beta_r * wsum - wr2) * (-2.0 * beta_r * std::sqrt(beta_r));
+}
 
 }  // namespace
 
-template <class Rows>
-double EntropyTerm::evaluate_impl(const std::vector<Vec3>& x, const std::vector<double>& s,
-                                  const std::vector<double>& m, const Periodicity& per, const Rows& rows,
-                                  Gradient* grad) {
+void EntropyTerm::prepare(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m) {
   const std::size_t n = x.size();
   rho_.resize(n);
   grad_rho_.resize(n);
@@ -92,90 +80,112 @@ double EntropyTerm::evaluate_impl(const std::vector<Vec3>& x, const std::vector<
     beta_[q] = 1.0 / (s[q] * s[q]);
     mc_[q] = m[q] * std::pow(beta_[q] / M_PI, half_d);
   }
-  const bool periodic = per.any();
-  const bool want_grad = grad != nullptr;
-  const bool widths = want_grad && grad->s.size() == n;
-  std::uint64_t evals = 0;
+}
 
-  // Sweep 1: rho_p = sum_q w_q(x_p) (q = p included) and grad rho(x_p).
-#pragma omp parallel for schedule(static) reduction(+ : evals)
-  for (std::size_t p = 0; p < n; ++p) {
-    const Vec3 xp = x[p];
-    double rho = mc_[p];
-    double gx = 0.0, gy = 0.0, gz = 0.0;
-    const std::uint32_t b = rows.begin(p), e = rows.end(p);
-    for (std::uint32_t k = b; k < e; ++k) {
-      const std::uint32_t q = rows.at(k);
-      if (rows.skip(p, q)) continue;
-      const Vec3 d = periodic ? per.displacement(xp, x[q]) : Vec3(xp - x[q]);
-      const double r2 = d.squaredNorm();
-      const double w = mc_[q] * detail::exp_nonpositive(-beta_[q] * r2);
-      rho += w;
-      const double c = -2.0 * beta_[q] * w;
-      gx += c * d[0];
-      gy += c * d[1];
-      gz += c * d[2];
-    }
-    evals += e - b;
-    rho_[p] = rho;
-    grad_rho_[p] = Vec3(gx, gy, gz);
-  }
-
-  // Value: per-particle terms summed in index order (thread-count independent).
+double EntropyTerm::value_from_density(const std::vector<double>& m) const {
+  // Summed in index order: independent of the thread count.
   double value = 0.0;
-  for (std::size_t p = 0; p < n; ++p) value += m[p] * std::log(rho_[p] / rho_ref_);
-  value *= kappa_;
-
-  if (want_grad) {
-    // Sweep 2, for each r: a_r = sum_p (m_p/rho_p) w_r(x_p) (x_p - x_r) and, for the
-    // widths, sum_p (m_p/rho_p) w_r(x_p) (d/(2 beta_r) - |x_p - x_r|^2) (p = r included).
-    a_.resize(n);
-    for (std::size_t p = 0; p < n; ++p) a_[p] = m[p] / rho_[p];
-#pragma omp parallel for schedule(static) reduction(+ : evals)
-    for (std::size_t r = 0; r < n; ++r) {
-      const Vec3 xr = x[r];
-      const double br = beta_[r];
-      double ax = 0.0, ay = 0.0, az = 0.0;
-      double wsum = a_[r] * mc_[r];  // self term's weight (its displacement is zero)
-      double w_r2 = 0.0;
-      const std::uint32_t b = rows.begin(r), e = rows.end(r);
-      for (std::uint32_t k = b; k < e; ++k) {
-        const std::uint32_t p = rows.at(k);
-        if (rows.skip(r, p)) continue;
-        const Vec3 d = periodic ? per.displacement(x[p], xr) : Vec3(x[p] - xr);
-        const double r2 = d.squaredNorm();
-        const double w = a_[p] * mc_[r] * detail::exp_nonpositive(-br * r2);
-        ax += w * d[0];
-        ay += w * d[1];
-        az += w * d[2];
-        wsum += w;
-        w_r2 += w * r2;
-      }
-      evals += e - b;
-      // dE/dx_r = -2 kappa (m_r/rho_r) sum_q beta_q w_rq (x_r - x_q)   (term 1)
-      //           + 2 kappa beta_r sum_p (m_p/rho_p) w_pr (x_p - x_r)    (term 2)
-      grad->x[r] = kappa_ * (a_[r] * grad_rho_[r] + 2.0 * br * Vec3(ax, ay, az));
-      if (widths) {
-        // dE/dbeta_r = kappa sum_p (m_p/rho_p) w_pr (d/(2 beta_r) - |x_p - x_r|^2); ds/dbeta = -s^3/2.
-        const double dE_dbeta = kappa_ * (half_d / br * wsum - w_r2);
-        grad->s[r] = dE_dbeta * (-2.0 * br * std::sqrt(br));
-      }
-    }
-  }
-  pair_evals_ += evals;
-  return value;
+  for (std::size_t p = 0; p < m.size(); ++p) value += m[p] * std::log(rho_[p] / rho_ref_);
+  return kappa_ * value;
 }
 
 double EntropyTerm::evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m,
                              const NeighborList& list, Gradient* grad) {
   require(list.built() && list.size() == x.size(), "neighbour list", static_cast<double>(list.size()),
           "must be built for the current particles");
-  return evaluate_impl(x, s, m, list.periodicity(), ListRows{list.offsets().data(), list.indices().data()}, grad);
+  const std::size_t n = x.size();
+  prepare(x, s, m);
+  px_.resize(n);
+  py_.resize(n);
+  pz_.resize(n);
+  for (std::size_t p = 0; p < n; ++p) {
+    px_[p] = x[p][0];
+    py_[p] = x[p][1];
+    pz_[p] = x[p][2];
+  }
+  const detail::BlobArrays b{px_.data(), py_.data(), pz_.data(), beta_.data(), mc_.data()};
+  detail::MinimumImage mi;
+  const Periodicity& per = list.periodicity();
+  for (int k = 0; k < 3; ++k) {
+    if (per.period[k] > 0.0) {
+      mi.period[k] = per.period[k];
+      mi.inv_period[k] = 1.0 / per.period[k];
+      mi.any = true;
+    }
+  }
+  const std::uint32_t* off = list.offsets().data();
+  const std::uint32_t* idx = list.indices().data();
+  t0_.resize(n);
+  t1_.resize(n);
+  t2_.resize(n);
+  t3_.resize(n);
+  t4_.resize(n);
+  // Rows are split into fixed chunks; each row writes only its own outputs.
+  constexpr std::size_t kChunk = 256;
+  const std::size_t nchunks = (n + kChunk - 1) / kChunk;
+#pragma omp parallel for schedule(dynamic, 4)
+  for (std::size_t c = 0; c < nchunks; ++c)
+    detail::density_rows(c * kChunk, std::min(n, (c + 1) * kChunk), off, idx, b, mi, rho_.data(), t0_.data(),
+                         t1_.data(), t2_.data());
+  for (std::size_t p = 0; p < n; ++p) grad_rho_[p] = Vec3(t0_[p], t1_[p], t2_[p]);
+  pair_evals_ += list.num_entries();
+  const double value = value_from_density(m);
+  if (!grad) return value;
+
+  a_.resize(n);
+  for (std::size_t p = 0; p < n; ++p) a_[p] = m[p] / rho_[p];
+  std::vector<double>& wsum = t3_;
+  std::vector<double>& wr2 = t4_;
+#pragma omp parallel for schedule(dynamic, 4)
+  for (std::size_t c = 0; c < nchunks; ++c)
+    detail::gather_rows(c * kChunk, std::min(n, (c + 1) * kChunk), off, idx, b, mi, a_.data(), t0_.data(),
+                        t1_.data(), t2_.data(), wsum.data(), wr2.data());
+  pair_evals_ += list.num_entries();
+  const bool widths = grad->s.size() == n;
+  const double half_d = 0.5 * dim_;
+  for (std::size_t r = 0; r < n; ++r)
+    assemble(kappa_, half_d, a_[r], beta_[r], grad_rho_[r], Vec3(t0_[r], t1_[r], t2_[r]), wsum[r], wr2[r],
+             grad->x[r], widths ? &grad->s[r] : nullptr);
+  return value;
 }
 
 double EntropyTerm::evaluate_all_pairs(const std::vector<Vec3>& x, const std::vector<double>& s,
-                                       const std::vector<double>& m, const Periodicity& periodicity, Gradient* grad) {
-  return evaluate_impl(x, s, m, periodicity, AllRows{static_cast<std::uint32_t>(x.size())}, grad);
+                                       const std::vector<double>& m, const Periodicity& per, Gradient* grad) {
+  // Plain O(n^2) loops with std::exp: the reference the accelerated path is tested against.
+  const std::size_t n = x.size();
+  prepare(x, s, m);
+  for (std::size_t p = 0; p < n; ++p) {
+    double rho = 0.0;
+    Vec3 g = Vec3::Zero();
+    for (std::size_t q = 0; q < n; ++q) {
+      const Vec3 d = per.displacement(x[p], x[q]);
+      const double w = mc_[q] * std::exp(-beta_[q] * d.squaredNorm());
+      rho += w;
+      g += -2.0 * beta_[q] * w * d;
+    }
+    rho_[p] = rho;
+    grad_rho_[p] = g;
+  }
+  pair_evals_ += n * n;
+  const double value = value_from_density(m);
+  if (!grad) return value;
+  const bool widths = grad->s.size() == n;
+  const double half_d = 0.5 * dim_;
+  for (std::size_t r = 0; r < n; ++r) {
+    Vec3 gathered = Vec3::Zero();
+    double wsum = 0.0, wr2 = 0.0;
+    for (std::size_t p = 0; p < n; ++p) {
+      const Vec3 d = per.displacement(x[p], x[r]);
+      const double w = m[p] / rho_[p] * mc_[r] * std::exp(-beta_[r] * d.squaredNorm());
+      gathered += w * d;
+      wsum += w;
+      wr2 += w * d.squaredNorm();
+    }
+    assemble(kappa_, half_d, m[r] / rho_[r], beta_[r], grad_rho_[r], gathered, wsum, wr2, grad->x[r],
+             widths ? &grad->s[r] : nullptr);
+  }
+  pair_evals_ += n * n;
+  return value;
 }
 
 // ------------------------------------------------------------------ Barrier

@@ -49,8 +49,9 @@ int CellGrid::cell_coord(double v, int axis) const {
   return std::clamp(c, 0, n_[axis] - 1);
 }
 
-void CellGrid::build(const std::vector<Vec3>& x, double cell_size, const Periodicity& periodicity) {
+void CellGrid::build(const std::vector<Vec3>& x, double cell_size, const Periodicity& periodicity, int reach) {
   per_ = periodicity;
+  reach_ = std::max(1, reach);
   const int dim = per_.dim;
   const std::size_t n = x.size();
   Vec3 lo = Vec3::Zero(), hi = Vec3::Zero();
@@ -102,6 +103,17 @@ void CellGrid::build(const std::vector<Vec3>& x, double cell_size, const Periodi
   items_.resize(n);
   std::vector<std::uint32_t> fill(cell_start_.begin(), cell_start_.end() - 1);
   for (std::size_t i = 0; i < n; ++i) items_[fill[cell_of[i]]++] = static_cast<std::uint32_t>(i);
+  sx_.resize(n);
+  sy_.resize(n);
+  sz_.resize(n);
+  for (std::size_t k = 0; k < n; ++k) {
+    sx_[k] = x[items_[k]][0];
+    sy_[k] = x[items_[k]][1];
+    sz_[k] = x[items_[k]][2];
+  }
+  shifts_exact_ = true;
+  for (int k = 0; k < dim; ++k)
+    if (per_.period[k] > 0.0 && n_[k] < 2 * reach_ + 1) shifts_exact_ = false;
 }
 
 // ------------------------------------------------------------ NeighborList
@@ -124,8 +136,15 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
     require(!(per_.period[k] > 0.0) || per_.period[k] >= 2.0 * list_radius_, "periodic box side",
             per_.period[k], "must be >= 2 x neighbour list radius (" + std::to_string(2.0 * list_radius_) + ")");
 
-  grid_.build(x, list_radius_, per_);
+  // Half-width cells visited two deep: about 40% fewer candidates than one-deep cells.
+  constexpr int kReach = 2;
+  grid_.build(x, list_radius_ / kReach, per_, kReach);
   const double r2 = list_radius_ * list_radius_;
+  const bool exact_shifts = grid_.shifts_exact();
+  const auto& items = grid_.items();
+  const double* sx = grid_.sorted_x().data();
+  const double* sy = grid_.sorted_y().data();
+  const double* sz = grid_.sorted_z().data();
 
   // Blocks of rows are searched in parallel into private buffers and joined in
   // block order, so the list is identical for any thread count.
@@ -137,12 +156,38 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
   for (std::size_t b = 0; b < nblocks; ++b) {
     auto& buf = block_items[b];
     const std::size_t end = std::min(n, (b + 1) * kBlock);
+    buf.reserve(kBlock * 256);
+    std::vector<double> keep;
     for (std::size_t p = b * kBlock; p < end; ++p) {
       const std::size_t before = buf.size();
       const Vec3 xp = x[p];
-      grid_.for_each_candidate(xp, [&](std::uint32_t q) {
-        if (q == p) return;
-        if (per_.displacement(xp, x[q]).squaredNorm() <= r2) buf.push_back(q);
+      grid_.for_each_cell(xp, [&](std::uint32_t cb, std::uint32_t ce, const Vec3& shift) {
+        const std::size_t at = buf.size();
+        buf.resize(at + (ce - cb));
+        std::uint32_t* out = buf.data() + at;
+        std::size_t cnt = 0;
+        if (exact_shifts) {
+          // Distances first (a loop that vectorises), then a scalar compress.
+          const double qx = xp[0] - shift[0], qy = xp[1] - shift[1], qz = xp[2] - shift[2];
+          const std::uint32_t len = ce - cb;
+          keep.resize(len);
+          double* kp = keep.data();
+#pragma omp simd
+          for (std::uint32_t k = 0; k < len; ++k) {
+            const double dx = qx - sx[cb + k], dy = qy - sy[cb + k], dz = qz - sz[cb + k];
+            kp[k] = r2 - (dx * dx + dy * dy + dz * dz);
+          }
+          for (std::uint32_t k = 0; k < len; ++k) {
+            out[cnt] = items[cb + k];
+            cnt += (kp[k] >= 0.0) & (items[cb + k] != p);  // branch-free append
+          }
+        } else {
+          for (std::uint32_t k = cb; k < ce; ++k) {
+            out[cnt] = items[k];
+            cnt += (per_.displacement(xp, Vec3(sx[k], sy[k], sz[k])).squaredNorm() <= r2) & (items[k] != p);
+          }
+        }
+        buf.resize(at + cnt);
       });
       counts[p] = static_cast<std::uint32_t>(buf.size() - before);
     }

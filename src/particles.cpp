@@ -87,6 +87,45 @@ void ParticleSet::set_uniform_beta(double beta) {
   std::fill(s_.begin(), s_.end(), 1.0 / std::sqrt(beta));
 }
 
+void ParticleSet::reorder(const std::vector<std::size_t>& order) {
+  require(order.size() == size(), "reorder: order size", static_cast<double>(order.size()),
+          "must equal the number of particles");
+  auto permute = [&](auto& v) {
+    std::remove_reference_t<decltype(v)> out;
+    out.reserve(v.size());
+    for (std::size_t i : order) out.push_back(v[i]);
+    v.swap(out);
+  };
+  permute(x_);
+  permute(s_);
+  permute(m_);
+  permute(birth_);
+  permute(id_);
+  for (std::size_t i = 0; i < id_.size(); ++i) index_[id_[i]] = i;
+}
+
+void ParticleSet::sort_spatially(double cell_size) {
+  require(std::isfinite(cell_size) && cell_size > 0.0, "cell_size", cell_size, "must be finite and > 0");
+  const std::size_t n = size();
+  if (n < 2) return;
+  Vec3 lo = x_[0];
+  for (const Vec3& p : x_) lo = lo.cwiseMin(p);
+  std::vector<std::uint64_t> key(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    // 21 bits per axis, z-major: cells along x are contiguous, then y, then z.
+    std::uint64_t k = 0;
+    for (int a = dim_ - 1; a >= 0; --a) {
+      const double c = std::floor((x_[i][a] - lo[a]) / cell_size);
+      k = (k << 21) | static_cast<std::uint64_t>(std::min(c, 2097151.0));
+    }
+    key[i] = k;
+  }
+  std::vector<std::size_t> order(n);
+  for (std::size_t i = 0; i < n; ++i) order[i] = i;
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return key[a] < key[b]; });
+  reorder(order);
+}
+
 double ParticleSet::total_mass() const {
   double m = 0.0;
   for (double v : m_) m += v;

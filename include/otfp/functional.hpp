@@ -75,12 +75,11 @@ class EntropyTerm {
   int dim() const { return dim_; }
 
  private:
-  template <class Rows>
-  double evaluate_impl(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m,
-                       const Periodicity& per, const Rows& rows, Gradient* grad);
+  void prepare(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m);
+  double value_from_density(const std::vector<double>& m) const;
   int dim_;
   double kappa_, rho_ref_;
-  std::vector<double> rho_, beta_, mc_, a_;
+  std::vector<double> rho_, beta_, mc_, a_, px_, py_, pz_, t0_, t1_, t2_, t3_, t4_;
   std::vector<Vec3> grad_rho_;
   std::uint64_t pair_evals_ = 0;
 };

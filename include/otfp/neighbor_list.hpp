@@ -52,15 +52,33 @@ struct NeighborOptions {
   void validate() const;           // throws InvalidArgument naming the field
 };
 
-// Uniform grid of cubic cells over the points' bounding box (or the periodic
-// box) with a counting-sort build; cells are at least `cell_size` wide.
+// Uniform grid of cells over the points' bounding box (or the periodic box)
+// with a counting-sort build. Cells are at least cell_size wide and a query
+// visits `reach` cells on each side, so any point within reach x cell_size of
+// the query point is a candidate.
 class CellGrid {
  public:
-  void build(const std::vector<Vec3>& x, double cell_size, const Periodicity& periodicity);
-  // Calls f(j) for every point j in the cells around y (3^d cells), each once.
+  void build(const std::vector<Vec3>& x, double cell_size, const Periodicity& periodicity, int reach = 1);
+  // Calls f(begin, end, shift) for every cell around y, each once: the points
+  // items()[begin..end) of that cell, seen at sorted_x/y/z + shift (the
+  // periodic image nearest the query when images do not alias).
   template <class F>
-  void for_each_candidate(const Vec3& y, F&& f) const;
+  void for_each_cell(const Vec3& y, F&& f) const;
+  // Calls f(j) for every point j in the cells around y, each once.
+  template <class F>
+  void for_each_candidate(const Vec3& y, F&& f) const {
+    for_each_cell(y, [&](std::uint32_t b, std::uint32_t e, const Vec3&) {
+      for (std::uint32_t k = b; k < e; ++k) f(items_[k]);
+    });
+  }
+  // True when the shift passed to for_each_cell is exact (no aliasing of images).
+  bool shifts_exact() const { return shifts_exact_; }
   std::size_t num_cells() const { return cell_start_.empty() ? 0 : cell_start_.size() - 1; }
+  const std::vector<std::uint32_t>& items() const { return items_; }
+  // Coordinates of items() in cell order.
+  const std::vector<double>& sorted_x() const { return sx_; }
+  const std::vector<double>& sorted_y() const { return sy_; }
+  const std::vector<double>& sorted_z() const { return sz_; }
 
  private:
   int cell_coord(double v, int axis) const;
@@ -68,8 +86,11 @@ class CellGrid {
   Vec3 origin_ = Vec3::Zero();
   Vec3 cell_width_ = Vec3::Ones();
   int n_[3] = {1, 1, 1};
+  int reach_ = 1;
+  bool shifts_exact_ = true;
   std::vector<std::uint32_t> cell_start_;  // size num_cells + 1
   std::vector<std::uint32_t> items_;       // point indices sorted by cell
+  std::vector<double> sx_, sy_, sz_;
 };
 
 class NeighborList {
@@ -113,34 +134,50 @@ class NeighborList {
 
 // ---- template implementation ----
 template <class F>
-void CellGrid::for_each_candidate(const Vec3& y, F&& f) const {
+void CellGrid::for_each_cell(const Vec3& y, F&& f) const {
   const int dim = per_.dim;
-  int c[3] = {0, 0, 0};
-  for (int k = 0; k < dim; ++k) c[k] = cell_coord(y[k], k);
-  int lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+  int c[3] = {0, 0, 0}, lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+  bool all_cells[3] = {false, false, false};
   for (int k = 0; k < dim; ++k) {
-    if (per_.period[k] > 0.0) {
-      // With fewer than 3 cells along a periodic axis, -1 and +1 alias: visit each cell once.
-      if (n_[k] < 3) { lo[k] = 0; hi[k] = n_[k] - 1; c[k] = 0; }
-      else { lo[k] = -1; hi[k] = 1; }
+    c[k] = cell_coord(y[k], k);
+    if (per_.period[k] > 0.0 && n_[k] < 2 * reach_ + 1) {
+      // Offsets would alias: visit every cell along this axis once.
+      all_cells[k] = true;
+      lo[k] = 0;
+      hi[k] = n_[k] - 1;
     } else {
-      lo[k] = -1; hi[k] = 1;
+      lo[k] = c[k] - reach_;
+      hi[k] = c[k] + reach_;
     }
   }
-  for (int a = lo[0]; a <= hi[0]; ++a) {
-    int i0 = c[0] + a;
-    if (per_.period[0] > 0.0) i0 = (i0 % n_[0] + n_[0]) % n_[0];
-    else if (i0 < 0 || i0 >= n_[0]) continue;
-    for (int b = lo[1]; b <= hi[1]; ++b) {
-      int i1 = c[1] + b;
-      if (per_.period[1] > 0.0) i1 = (i1 % n_[1] + n_[1]) % n_[1];
-      else if (i1 < 0 || i1 >= n_[1]) continue;
-      for (int e = lo[2]; e <= hi[2]; ++e) {
-        int i2 = c[2] + e;
-        if (per_.period[2] > 0.0) i2 = (i2 % n_[2] + n_[2]) % n_[2];
-        else if (i2 < 0 || i2 >= n_[2]) continue;
-        const std::size_t cell = (static_cast<std::size_t>(i2) * n_[1] + i1) * n_[0] + i0;
-        for (std::uint32_t k = cell_start_[cell]; k < cell_start_[cell + 1]; ++k) f(items_[k]);
+  for (int i2 = lo[2]; i2 <= hi[2]; ++i2) {
+    int j2 = i2;
+    double s2 = 0.0;
+    if (!all_cells[2] && per_.period[2] > 0.0) {
+      if (j2 < 0) { j2 += n_[2]; s2 = -per_.period[2]; }
+      else if (j2 >= n_[2]) { j2 -= n_[2]; s2 = per_.period[2]; }
+    } else if (j2 < 0 || j2 >= n_[2]) continue;
+    for (int i1 = lo[1]; i1 <= hi[1]; ++i1) {
+      int j1 = i1;
+      double s1 = 0.0;
+      if (!all_cells[1] && per_.period[1] > 0.0) {
+        if (j1 < 0) { j1 += n_[1]; s1 = -per_.period[1]; }
+        else if (j1 >= n_[1]) { j1 -= n_[1]; s1 = per_.period[1]; }
+      } else if (j1 < 0 || j1 >= n_[1]) continue;
+      // Cells along x are contiguous in items(): visit them as runs.
+      const std::size_t row = (static_cast<std::size_t>(j2) * n_[1] + j1) * n_[0];
+      auto run = [&](int c0, int c1, double s0) {
+        const std::uint32_t b = cell_start_[row + c0], e = cell_start_[row + c1 + 1];
+        if (b < e) f(b, e, Vec3(s0, s1, s2));
+      };
+      if (all_cells[0]) {
+        run(0, n_[0] - 1, 0.0);
+      } else if (per_.period[0] > 0.0) {
+        if (lo[0] < 0) run(lo[0] + n_[0], n_[0] - 1, -per_.period[0]);
+        run(std::max(lo[0], 0), std::min(hi[0], n_[0] - 1), 0.0);
+        if (hi[0] >= n_[0]) run(0, hi[0] - n_[0], per_.period[0]);
+      } else {
+        run(std::max(lo[0], 0), std::min(hi[0], n_[0] - 1), 0.0);
       }
     }
   }

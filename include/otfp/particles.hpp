@@ -53,6 +53,13 @@ class ParticleSet {
   double total_mass() const;
   ParticleId next_id() const { return next_id_; }
 
+  // Reorders the particles: new index i holds the particle that had index order[i].
+  // Ids move with their particles.
+  void reorder(const std::vector<std::size_t>& order);
+  // Sorts the particles by the cell of a grid of the given cell size (row-major
+  // cell order) so that neighbours are close in memory; returns nothing, ids are kept.
+  void sort_spatially(double cell_size);
+
   // Sets every width to s = beta^-1/2.
   void set_uniform_beta(double beta);
 

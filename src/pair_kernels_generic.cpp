@@ -1,0 +1,2 @@
+#define OTFP_KERNEL_NS generic
+#include "pair_kernels_impl.inc"
