@@ -1,0 +1,114 @@
+#include <chrono>
+#include <cmath>
+
+#include "otfp/stepper.hpp"
+
+namespace otfp {
+
+std::string to_string(ExplicitScheme s) {
+  switch (s) {
+    case ExplicitScheme::EulerForce27: return "euler27";
+    case ExplicitScheme::Rk4Force27: return "rk4";
+    case ExplicitScheme::EulerExactGradient: return "euler_exact";
+  }
+  return "?";
+}
+
+ExplicitScheme explicit_scheme_from_string(const std::string& s) {
+  if (s == "euler27") return ExplicitScheme::EulerForce27;
+  if (s == "rk4") return ExplicitScheme::Rk4Force27;
+  if (s == "euler_exact") return ExplicitScheme::EulerExactGradient;
+  throw InvalidArgument("explicit scheme = '" + s + "': must be one of euler27, rk4, euler_exact");
+}
+
+void ExplicitOptions::validate() const {
+  require(std::isfinite(kappa) && kappa > 0.0, "kappa", kappa, "must be finite and > 0");
+  require(std::isfinite(rho_ref) && rho_ref > 0.0, "rho_ref", rho_ref, "must be finite and > 0");
+  neighbor.validate();
+}
+
+namespace {
+FunctionalOptions functional_options(const ExplicitOptions& o) {
+  FunctionalOptions f;
+  f.kappa = o.kappa;
+  f.rho_ref = o.rho_ref;
+  f.neighbor = o.neighbor;
+  return f;
+}
+}  // namespace
+
+ExplicitStepper::ExplicitStepper(int dim, ExplicitOptions options, Barrier barrier, Periodicity periodicity)
+    : dim_(dim),
+      options_((options.validate(), options)),
+      functional_(dim, functional_options(options), std::move(barrier), periodicity) {}
+
+void ExplicitStepper::velocity(const std::vector<Vec3>& x, const std::vector<double>& s, std::vector<Vec3>& v) {
+  if (options_.scheme == ExplicitScheme::EulerExactGradient) {
+    // With the reference at x the transport gradient vanishes: v = -(1/m) d(E + B)/dx.
+    functional_.set_reference(x, s, functional_.masses());
+    Gradient g;
+    functional_.evaluate(x, s, &g);
+    v.resize(x.size());
+    for (std::size_t p = 0; p < x.size(); ++p) v[p] = -g.x[p] / functional_.masses()[p];
+  } else {
+    functional_.explicit_velocity(x, s, v);
+  }
+}
+
+StepSummary ExplicitStepper::step(ParticleSet& particles, double dt) {
+  require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
+  const auto t0 = std::chrono::steady_clock::now();
+  StepSummary summary;
+  summary.dt = dt;
+  const auto& x0 = particles.positions();
+  const auto& s = particles.widths();
+  functional_.set_dt(dt);
+  functional_.set_reference(x0, s, particles.masses());
+  const int builds_before = functional_.list().build_count();
+  const std::uint64_t pairs_before = functional_.entropy().pair_evaluations();
+  if (functional_.list().size() != x0.size()) functional_.list().build(x0, s, functional_.periodicity());
+  summary.parts_before = functional_.evaluate(x0, s, nullptr);
+  summary.f_before = summary.parts_before.total();
+
+  const std::size_t n = x0.size();
+  std::vector<Vec3> x = x0, v;
+  if (options_.scheme == ExplicitScheme::Rk4Force27) {
+    std::vector<Vec3> k1, k2, k3, k4, tmp(n);
+    velocity(x0, s, k1);
+    for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + 0.5 * dt * k1[p];
+    velocity(tmp, s, k2);
+    for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + 0.5 * dt * k2[p];
+    velocity(tmp, s, k3);
+    for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + dt * k3[p];
+    velocity(tmp, s, k4);
+    for (std::size_t p = 0; p < n; ++p) x[p] = x0[p] + dt / 6.0 * (k1[p] + 2.0 * k2[p] + 2.0 * k3[p] + k4[p]);
+    summary.evaluations = 4;
+  } else {
+    velocity(x0, s, v);
+    for (std::size_t p = 0; p < n; ++p) x[p] = x0[p] + dt * v[p];
+    summary.evaluations = 1;
+  }
+  bool finite = true;
+  for (const auto& p : x) finite = finite && p.allFinite();
+  summary.iterations = 1;
+  if (finite) {
+    functional_.set_reference(x0, s, particles.masses());
+    summary.parts_after = functional_.evaluate(x, s, nullptr);
+    summary.f_after = summary.parts_after.total();
+    const Periodicity& per = functional_.periodicity();
+    for (auto& p : x) p = per.wrap(p);
+    particles.positions() = std::move(x);
+    summary.accepted = true;
+    summary.reason = TerminationReason::Converged;
+  } else {
+    summary.accepted = false;
+    summary.reason = TerminationReason::NonFinite;
+    summary.message = "explicit update produced non-finite positions";
+  }
+  summary.list_builds = functional_.list().build_count() - builds_before;
+  summary.pair_evaluations = functional_.entropy().pair_evaluations() - pairs_before;
+  summary.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return summary;
+}
+
+}  // namespace otfp
