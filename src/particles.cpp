@@ -104,26 +104,25 @@ void ParticleSet::reorder(const std::vector<std::size_t>& order) {
   for (std::size_t i = 0; i < id_.size(); ++i) index_[id_[i]] = i;
 }
 
-void ParticleSet::sort_spatially(double cell_size) {
+std::vector<std::size_t> spatial_order(const std::vector<Vec3>& x, int dim, double cell_size) {
   require(std::isfinite(cell_size) && cell_size > 0.0, "cell_size", cell_size, "must be finite and > 0");
-  const std::size_t n = size();
-  if (n < 2) return;
-  Vec3 lo = x_[0];
-  for (const Vec3& p : x_) lo = lo.cwiseMin(p);
+  const std::size_t n = x.size();
+  std::vector<std::size_t> order(n);
+  for (std::size_t i = 0; i < n; ++i) order[i] = i;
+  if (n < 2) return order;
+  Vec3 lo = x[0];
+  for (const Vec3& p : x) lo = lo.cwiseMin(p);
   std::vector<std::uint64_t> key(n);
   for (std::size_t i = 0; i < n; ++i) {
-    // 21 bits per axis, z-major: cells along x are contiguous, then y, then z.
-    std::uint64_t k = 0;
-    for (int a = dim_ - 1; a >= 0; --a) {
-      const double c = std::floor((x_[i][a] - lo[a]) / cell_size);
+    std::uint64_t k = 0;  // 21 bits per axis
+    for (int a = dim - 1; a >= 0; --a) {
+      const double c = std::floor((x[i][a] - lo[a]) / cell_size);
       k = (k << 21) | static_cast<std::uint64_t>(std::min(c, 2097151.0));
     }
     key[i] = k;
   }
-  std::vector<std::size_t> order(n);
-  for (std::size_t i = 0; i < n; ++i) order[i] = i;
   std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return key[a] < key[b]; });
-  reorder(order);
+  return order;
 }
 
 double ParticleSet::total_mass() const {

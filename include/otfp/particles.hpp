@@ -11,6 +11,10 @@ namespace otfp {
 
 using ParticleId = std::int64_t;
 
+// Permutation that sorts points by the cell of a grid of the given cell size
+// (z-major, then y, then x), so that neighbours end up close in memory.
+std::vector<std::size_t> spatial_order(const std::vector<Vec3>& x, int dim, double cell_size);
+
 // Structure-of-arrays particle storage.
 //
 // The width of blob p is stored as s_p = beta_p^(-1/2) (a length): the
@@ -56,9 +60,8 @@ class ParticleSet {
   // Reorders the particles: new index i holds the particle that had index order[i].
   // Ids move with their particles.
   void reorder(const std::vector<std::size_t>& order);
-  // Sorts the particles by the cell of a grid of the given cell size (row-major
-  // cell order) so that neighbours are close in memory; returns nothing, ids are kept.
-  void sort_spatially(double cell_size);
+  // Reorders the particles by spatial_order(); ids are kept.
+  void sort_spatially(double cell_size) { reorder(spatial_order(x_, dim_, cell_size)); }
 
   // Sets every width to s = beta^-1/2.
   void set_uniform_beta(double beta);

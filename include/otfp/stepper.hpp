@@ -53,6 +53,7 @@ struct ImplicitOptions {
   NeighborOptions neighbor{1e-8, -1.0, 1.0};         // cut-off tolerance; skin = 1 x smallest s
   int max_halvings = 4;                              // retries with dt/2 substeps after a failed solve
   double energy_tolerance = 1e-9;                    // allowed F_after - F_before, relative to |F_before| + |E|
+  bool sort_particles = true;                        // reorder particles spatially at each accepted step (ids kept)
   void validate() const;
 };
 
@@ -61,6 +62,7 @@ class ImplicitStepper {
   ImplicitStepper(int dim, ImplicitOptions options, Barrier barrier = {}, Periodicity periodicity = {});
   // One implicit step of length dt from the state in `particles`. On failure
   // (after max_halvings retries) the particles are left exactly as they were.
+  // On success they may also be reordered (sort_particles); ids are kept.
   StepSummary step(ParticleSet& particles, double dt);
   void set_external_potential(ExternalPotential u) { external_ = std::move(u); }
   const ImplicitOptions& options() const { return options_; }
@@ -89,13 +91,15 @@ struct ExplicitOptions {
   double kappa = 1.0;                                    // diffusivity
   double rho_ref = 1.0;                                  // reference density (only shifts F)
   NeighborOptions neighbor{1e-8, -1.0, 1.0};             // cut-off tolerance and skin
+  bool sort_particles = true;                            // reorder particles spatially each step (ids kept)
   void validate() const;
 };
 
 class ExplicitStepper {
  public:
   ExplicitStepper(int dim, ExplicitOptions options, Barrier barrier = {}, Periodicity periodicity = {});
-  // Widths stay fixed. A step that produces non-finite positions is rejected.
+  // Widths stay fixed. A step that produces non-finite positions is rejected
+  // (the particles may have been reordered, ids kept, but not moved).
   StepSummary step(ParticleSet& particles, double dt);
   Barrier& barrier() { return functional_.barrier().barrier(); }
   Functional& functional() { return functional_; }
