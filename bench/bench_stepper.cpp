@@ -1,0 +1,97 @@
+// One diffusive step in 3D: n = 1e4 particles uniform in the unit ball,
+// beta = 2/dr^2, barrier C = 1/dt_explicit. Implicit steps with both backends,
+// fixed and per-particle widths, at dt = 1x, 10x and 100x the explicit limit,
+// and one explicit step for comparison. Each benchmark iteration is one step
+// (after two warm-up steps); counters give medians over the timed steps.
+//   ./otfp_bench_stepper --benchmark_counters_tabular=true
+#include <benchmark/benchmark.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+
+#include "otfp/geometry.hpp"
+#include "otfp/parameters.hpp"
+#include "otfp/stepper.hpp"
+
+using namespace otfp;
+
+namespace {
+
+constexpr std::size_t kParticles = 10000;
+
+struct Cloud {
+  ParticleSet ps{3};
+  PaperParameters pp;
+  DomainPtr ball;
+};
+
+Cloud make_cloud() {
+  Cloud c;
+  c.ball = make_ball(3, Vec3::Zero(), 1.0);
+  c.pp = paper_parameters(c.ball->volume(), kParticles, 3, 1.0, 1.0, 2.0, SpacingRule::Cube);
+  Rng rng(11);
+  for (std::size_t i = 0; i < kParticles; ++i) c.ps.add(c.ball->sample_interior(rng), c.pp.width_s, 1.0 / kParticles);
+  return c;
+}
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0.0 : v[v.size() / 2];
+}
+
+template <class Stepper>
+void run_steps(benchmark::State& state, Stepper& stepper, Cloud& c, double dt) {
+  for (int k = 0; k < 2; ++k) stepper.step(c.ps, dt);  // warm-up: leave the random initial state
+  std::vector<double> evals, iters, solver_share, builds, ms;
+  for (auto _ : state) {
+    const StepSummary s = stepper.step(c.ps, dt);
+    if (!s.accepted) {
+      state.SkipWithError(("step rejected: " + s.message).c_str());
+      break;
+    }
+    evals.push_back(s.evaluations);
+    iters.push_back(s.iterations);
+    solver_share.push_back(s.wall_seconds > 0 ? s.solver_seconds / s.wall_seconds : 0.0);
+    builds.push_back(s.list_builds);
+    ms.push_back(1e3 * s.wall_seconds);
+  }
+  state.counters["evals/step"] = median(evals);
+  state.counters["iters/step"] = median(iters);
+  state.counters["solver_share"] = median(solver_share);
+  state.counters["builds/step"] = median(builds);
+  state.counters["ms/step"] = median(ms);
+  state.counters["dt/dt_ex"] = dt / c.pp.dt_explicit;
+}
+
+// Args: backend (0 Ceres, 1 NLopt), widths (0 fixed, 1 per particle), dt factor.
+void BM_ImplicitStep(benchmark::State& state) {
+  Cloud c = make_cloud();
+  ImplicitOptions o;
+  o.minimizer.backend = state.range(0) == 0 ? Backend::Ceres : Backend::Nlopt;
+  o.width_mode = state.range(1) == 0 ? WidthMode::Fixed : WidthMode::PerParticle;
+  o.rho_ref = 1.0 / c.ball->volume();
+  if (const char* tol = std::getenv("OTFP_BENCH_TOLERANCE")) o.displacement_tolerance = std::atof(tol);
+  ImplicitStepper stepper(3, o, Barrier(c.ball, c.pp.barrier_C));
+  state.SetLabel(to_string(o.minimizer.backend) + "/" + to_string(o.width_mode));
+  run_steps(state, stepper, c, static_cast<double>(state.range(2)) * c.pp.dt_explicit);
+}
+
+void BM_ExplicitStep(benchmark::State& state) {
+  Cloud c = make_cloud();
+  ExplicitOptions o;
+  o.scheme = static_cast<ExplicitScheme>(state.range(0));
+  ExplicitStepper stepper(3, o, Barrier(c.ball, c.pp.barrier_C));
+  state.SetLabel(to_string(o.scheme));
+  run_steps(state, stepper, c, c.pp.dt_explicit);
+}
+
+}  // namespace
+
+BENCHMARK(BM_ImplicitStep)
+    ->ArgsProduct({{0, 1}, {0, 1}, {1, 10, 100}})
+    ->Iterations(5)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_ExplicitStep)->DenseRange(0, 2)->Iterations(5)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK_MAIN();

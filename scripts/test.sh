@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Installs what is missing, builds otfp and runs the whole test suite.
+#   bash scripts/test.sh             Release build + tests + find_package consumer check
+#   bash scripts/test.sh --ci        the same with warnings as errors, then the tests
+#                                    once more under AddressSanitizer + UndefinedBehaviorSanitizer
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ci=0
+for arg in "$@"; do
+  case "$arg" in
+    --ci) ci=1 ;;
+    *) echo "usage: bash scripts/test.sh [--ci]" >&2; exit 2 ;;
+  esac
+done
+jobs=$(nproc 2>/dev/null || echo 2)
+bash scripts/install_deps.sh
+
+werror=OFF
+[ "$ci" = 1 ] && werror=ON
+echo "== Release build (warnings as errors: $werror)"
+cmake -S . -B build -DCMAKE_BUILD_TYPE=Release -DOTFP_WARNINGS_AS_ERRORS=$werror
+cmake --build build -j "$jobs"
+echo "== Tests"
+ctest --test-dir build -j "$jobs" --output-on-failure
+
+echo "== find_package(otfp) from an installed tree"
+rm -rf build/_install build/_consumer
+cmake --install build --prefix "$PWD/build/_install" >/dev/null
+cmake -S examples/consumer -B build/_consumer -DCMAKE_PREFIX_PATH="$PWD/build/_install" -DCMAKE_BUILD_TYPE=Release >/dev/null
+cmake --build build/_consumer -j "$jobs" >/dev/null
+./build/_consumer/consumer
+
+if [ "$ci" = 1 ]; then
+  echo "== Tests under AddressSanitizer + UndefinedBehaviorSanitizer"
+  cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DOTFP_WARNINGS_AS_ERRORS=ON \
+        -DOTFP_SANITIZE=address,undefined -DOTFP_BUILD_BENCHMARKS=OFF -DOTFP_BUILD_EXAMPLES=OFF
+  cmake --build build-asan -j "$jobs"
+  ASAN_OPTIONS=detect_leaks=0 UBSAN_OPTIONS=print_stacktrace=1 OMP_NUM_THREADS=2 \
+    ctest --test-dir build-asan -j "$jobs" --output-on-failure
+fi
+echo "== all tests passed"
