@@ -1,0 +1,20 @@
+#pragma once
+// Analytic references (METHOD-NOTES 4).
+
+namespace otfp::analytic {
+
+// Sphere of radius R, initially empty, surface held at g (Crank eq. 6.20):
+// M(t)/M_inf = 1 - (6/pi^2) sum_{n>=1} n^-2 exp(-n^2 pi^2 kappa t / R^2).
+double crank_sphere_uptake(double kappa_t_over_R2);
+
+// Slab 0 < x < L, x = 0 held at g, x = L no flux (Crank eq. 4.18):
+// M(t)/M_inf = 1 - sum_{k>=0} 8/((2k+1)^2 pi^2) exp(-(2k+1)^2 pi^2 kappa t / (4 L^2)).
+double crank_slab_uptake(double kappa_t_over_L2);
+
+// Free space: growth of the second moment per axis, 2 kappa t.
+inline double free_space_variance_growth(double kappa, double t) { return 2.0 * kappa * t; }
+
+// Periodic box, density 1 + a cos(k x): amplitude factor exp(-kappa k^2 t).
+double cosine_mode_decay(double kappa, double wavenumber, double t);
+
+}  // namespace otfp::analytic
