@@ -24,8 +24,8 @@ TEST(Analytic, ShortTimeFormsJoinTheSeries) {
   EXPECT_NEAR(crank_slab_uptake(tau), 2.0 * std::sqrt(tau / M_PI), 1e-12);
   // Monotone increase.
   double prev = 0.0;
-  for (double tau = 1e-7; tau < 2.0; tau *= 1.3) {
-    const double m = crank_sphere_uptake(tau);
+  for (double t = 1e-7; t < 2.0; t *= 1.3) {
+    const double m = crank_sphere_uptake(t);
     EXPECT_GT(m, prev);
     prev = m;
   }

@@ -1,0 +1,11 @@
+#pragma once
+// The `otfp` command line: `otfp run CONFIG --out DIR [--set k=v ...] [--quiet]`
+// and `otfp check CONFIG [--set k=v ...]`. Exit codes: 0 success, 1 the run
+// failed (files kept), 2 bad command line or configuration (nothing written).
+#include <ostream>
+
+namespace otfp::app {
+
+int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream& err);
+
+}  // namespace otfp::app

@@ -1,0 +1,144 @@
+#pragma once
+// Configuration of one otfp run: the TOML schema (docs/configuration.md), its
+// typed form, and parsing with --set overrides. Every rejected value raises
+// ConfigError with the message "<key> = <value>: <rule>" (exit code 2).
+#include <cstdint>
+#include <filesystem>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "otfp/types.hpp"
+
+namespace otfp::app {
+
+class ConfigError : public std::runtime_error {
+ public:
+  ConfigError(const std::string& key, const std::string& value, const std::string& rule);
+  // Already formatted (e.g. a TOML syntax error with its location).
+  ConfigError(const std::string& key, const std::string& message);
+  const std::string& key() const { return key_; }
+
+ private:
+  std::string key_;
+};
+
+struct RunSection {
+  int dim = 3;
+  double t_end = 1.0;
+  std::optional<double> dt;  // absent: dt_factor * dr^2 / kappa
+  double dt_factor = 1.0;
+  std::int64_t seed = 1;
+  std::int64_t max_steps = 0;  // 0: no limit
+  std::int64_t vtk_interval = 50;  // 0: initial and final snapshot only
+  int threads = 1;  // 0: OpenMP default
+};
+
+struct SubPatchSpec {
+  std::string name;
+  std::string on;               // base patch name
+  std::optional<Vec3> center;   // absent: centre of the base patch
+  double radius = 0.0;
+};
+
+struct DomainSection {
+  std::string type = "ball";  // ball | box | cylinder | periodic_box | square_pipe_obstacle | free
+  Vec3 center = Vec3::Zero();
+  double radius = 1.0;
+  Vec3 lo = Vec3::Zero();
+  Vec3 hi = Vec3::Ones();
+  Vec3 end_a = Vec3::Zero();
+  Vec3 end_b = Vec3::UnitX();
+  std::optional<Vec3> obstacle_center;
+  std::optional<double> obstacle_radius;
+  std::string obstacle_axis = "z";
+  std::vector<SubPatchSpec> subpatches;
+};
+
+struct ParticlesSection {
+  std::int64_t n_inf = 400;
+  std::optional<double> mass;
+  std::string spacing_rule = "cube";  // cube | sphere_radius
+  double beta_factor = 2.0;
+  double layer_b = 0.0;   // 0: sqrt(length_L dr)
+  double length_L = 0.0;  // 0: from the domain
+  std::string dirichlet_target = "cell_integral";  // cell_integral | paper_eq34
+  std::string fill = "empty";  // empty | uniform | gaussian
+  std::optional<std::int64_t> fill_count;
+  std::optional<double> fill_mass;
+  std::optional<Vec3> fill_center;
+  double fill_sigma = 0.1;
+};
+
+struct PhysicsSection {
+  double kappa = 1.0;
+  double rho_ref = 1.0;
+  Vec3 velocity = Vec3::Zero();
+  double source_rate = 0.0;
+};
+
+struct BoundarySpec {
+  std::string patch;
+  std::string kind;  // dirichlet | neumann | no_flux
+  std::optional<double> value;
+  double t_start = 0.0;
+  std::optional<double> t_end;
+};
+
+struct SolverSection {
+  std::string stepper = "implicit";  // implicit | explicit
+  std::string backend = "ceres";     // ceres | nlopt
+  std::string algorithm = "lbfgs";
+  std::string explicit_scheme = "euler27";
+  std::string width_mode = "fixed";
+  std::string width_metric = "as_printed";  // as_printed | exact
+  double displacement_tolerance = 1e-3;
+  std::int64_t max_iterations = 1000;
+  std::int64_t max_evaluations = 5000;
+  std::int64_t lbfgs_memory = 10;
+  std::int64_t max_halvings = 4;
+  double energy_tolerance = 1e-9;
+  double barrier_factor = 1.0;
+  std::optional<double> barrier_stiffness;
+  double kernel_tolerance = 1e-8;
+  double skin_factor = 1.0;
+};
+
+struct DiagnosticsSection {
+  std::optional<Vec3> center;
+  std::optional<double> M_inf;
+  std::optional<double> J_inf;
+  std::string reference = "none";  // none | crank_sphere | crank_slab | free_space
+  std::optional<double> reference_radius;
+  std::optional<double> reference_length;
+};
+
+struct Config {
+  RunSection run;
+  DomainSection domain;
+  ParticlesSection particles;
+  PhysicsSection physics;
+  std::vector<BoundarySpec> boundary;
+  SolverSection solver;
+  DiagnosticsSection diagnostics;
+  std::string source = "<string>";      // file the configuration came from
+  std::vector<std::string> overrides;   // the --set arguments, in order
+};
+
+// Parses, applies the overrides ("a.b=value", in order) and validates every
+// value that does not need the geometry (Simulation checks the rest).
+Config parse_config_file(const std::filesystem::path& file, const std::vector<std::string>& overrides = {});
+Config parse_config_string(std::string_view toml_text, const std::vector<std::string>& overrides = {},
+                           const std::string& source = "<string>");
+
+// Every key of the schema as "section.key", arrays of tables as
+// "boundary[].patch" and "domain.subpatch[].name" (for docs and tests).
+std::vector<std::string> schema_keys();
+
+// The typed configuration as a TOML document (all keys, defaults filled in;
+// absent optional keys are omitted). Parsing it again gives the same Config.
+std::string to_toml(const Config& config);
+
+}  // namespace otfp::app

@@ -1,0 +1,128 @@
+#pragma once
+// The run driver of Algorithm 1: advection, source, diffusion (implicit or
+// explicit), boundary projection, diagnostics (43)-(46) and output.
+//
+// Simulation's constructor does every check that needs the geometry and
+// builds all library objects; it throws ConfigError (exit code 2) and never
+// touches the file system. run() creates the output directory and steps.
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "otfp/boundary.hpp"
+#include "otfp/geometry.hpp"
+#include "otfp/particles.hpp"
+#include "otfp_app/config.hpp"
+
+namespace otfp::app {
+
+// Library version the tool reports.
+std::string version();
+
+// One boundary patch of the built domain and what is imposed on it.
+struct PatchInfo {
+  int id = 0;
+  std::string name;
+  double area = 0.0;
+  std::string kind = "no_flux";  // dirichlet | neumann | no_flux
+  double value = 0.0;            // g or f
+  double t_start = 0.0;
+  std::optional<double> t_end;
+  int condition = -1;            // index into BoundaryProjection::conditions(), -1 for no_flux
+};
+
+// Numbers derived from the configuration by the papers' rules (36)-(40).
+struct Derived {
+  double volume = 0.0;       // |Omega| (free: the reference box)
+  double dr = 0.0;           // mean spacing (37) or the sphere-radius rule
+  double beta = 0.0;         // beta_factor / dr^2
+  double width_s = 0.0;      // beta^-1/2
+  double length_L = 0.0;     // L of b = sqrt(L dr)
+  double layer_b = 0.0;      // boundary-layer half-thickness b
+  double dt_explicit = 0.0;  // dr^2 / kappa (39)
+  double dt = 0.0;           // the step used: t_end / n_steps
+  std::int64_t n_steps = 0;  // steps to t_end
+  std::int64_t steps_to_run = 0;  // n_steps, or run.max_steps if smaller
+  double barrier_C = 0.0;    // (40): barrier_factor / dt_explicit unless given
+  std::string barrier_domain = "none";  // what Omega' the barrier keeps the particles in
+  double particle_mass = 0.0;
+  double M_inf = 0.0;
+  std::string M_inf_rule;
+  std::optional<double> J_inf;
+  std::string J_inf_rule;
+  Vec3 center = Vec3::Zero();  // polar inertia centre
+  std::int64_t fill_count = 0;
+  double neumann_net_inflow = 0.0;  // integral over [0, t_end] of the inflow of all Neumann patches
+  std::optional<double> reference_radius, reference_length;
+};
+
+// Diagnostics of one step (row of series.csv).
+struct StepRecord {
+  std::int64_t step = 0;
+  double t = 0.0, dt = 0.0;
+  std::int64_t n_particles = 0, n_inside = 0, n_buffer = 0, n_outside = 0;
+  double mass_total = 0.0, mass_inside = 0.0, mass_with_layer = 0.0;
+  double polar_inertia = 0.0, polar_inertia_with_layer = 0.0, polar_inertia_total = 0.0;
+  std::int64_t inserted = 0, removed = 0, inserted_total = 0, removed_total = 0;
+  double energy = 0.0, transport = 0.0, entropy = 0.0, barrier = 0.0, gradient_norm = 0.0;
+  std::int64_t iterations = 0, evaluations = 0, list_builds = 0, halvings = 0;
+  double mean_age = 0.0, max_age = 0.0;
+  double l1_mass = 0.0, l1_polar_inertia = 0.0;  // running (46a)-(46b), rectangle rule, all particles
+  double mass_ratio = 0.0;                        // mass_inside / M_inf
+  std::optional<double> polar_inertia_ratio;      // polar_inertia / J_inf
+  std::optional<double> reference;                // reference_mass_ratio or reference_polar_inertia
+  // Timing: kept out of series.csv so that it is reproducible byte for byte.
+  double wall_seconds = 0.0, step_seconds = 0.0, solver_seconds = 0.0;
+};
+
+struct RunOptions {
+  std::filesystem::path out_dir;  // empty: write nothing (in-memory run for tests)
+  bool progress = false;          // progress line on stderr
+  bool keep_series = true;        // keep every StepRecord in RunResult::series
+};
+
+struct RunResult {
+  int exit_code = 0;              // 0 completed, 1 failed
+  std::string status;             // "completed" | "failed"
+  std::string error;              // why it failed
+  std::vector<StepRecord> series;
+  StepRecord last;
+  nlohmann::json summary;         // what summary.json holds
+};
+
+class Simulation {
+ public:
+  explicit Simulation(Config config);
+  ~Simulation();
+  Simulation(const Simulation&) = delete;
+  Simulation& operator=(const Simulation&) = delete;
+
+  RunResult run(const RunOptions& options);
+
+  const Config& config() const { return config_; }
+  const Derived& derived() const { return derived_; }
+  const Domain& domain() const { return *domain_; }
+  const std::vector<PatchInfo>& patches() const { return patches_; }
+  // The resolved configuration and derived numbers (summary.json "config"/"derived").
+  nlohmann::json describe() const;
+
+  // Reference curves (Crank, eq. 6.20 and 4.18).
+  static double crank_sphere(double kappa, double radius, double t);
+  static double crank_slab(double kappa, double length, double t);
+
+ private:
+  struct State;
+  Config config_;
+  DomainPtr domain_;
+  bool free_space_ = false;
+  Derived derived_;
+  std::vector<PatchInfo> patches_;
+  std::unique_ptr<State> state_;
+};
+
+}  // namespace otfp::app

@@ -1,0 +1,907 @@
+#include "otfp_app/simulation.hpp"
+
+#include <omp.h>
+#include <unistd.h>
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <iostream>
+#include <limits>
+#include <numbers>
+
+#include "domain_setup.hpp"
+#include "otfp/barrier.hpp"
+#include "otfp/fractional.hpp"
+#include "otfp/neighbor_list.hpp"
+#include "otfp/parameters.hpp"
+#include "otfp/stepper.hpp"
+#include "otfp_app/writers.hpp"
+
+#ifndef OTFP_APP_VERSION
+#define OTFP_APP_VERSION "unknown"
+#endif
+
+namespace otfp::app {
+
+std::string version() { return OTFP_APP_VERSION; }
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+constexpr double kPi = std::numbers::pi;
+
+// A failure while stepping: exit code 1, files kept.
+class RunError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+std::string quoted(const std::string& s) { return "\"" + s + "\""; }
+
+nlohmann::json to_json(const Vec3& v) { return nlohmann::json::array({v[0], v[1], v[2]}); }
+
+template <class T>
+nlohmann::json opt(const std::optional<T>& v) {
+  return v ? nlohmann::json(*v) : nlohmann::json(nullptr);
+}
+
+// Length of [a, b] inside [lo, hi].
+double overlap(double a, double b, double lo, double hi) { return std::max(0.0, std::min(b, hi) - std::max(a, lo)); }
+
+std::string hms(double seconds) {
+  const long s = std::lround(std::max(0.0, seconds));
+  return s >= 3600 ? fmt::format("{}:{:02}:{:02}", s / 3600, (s / 60) % 60, s % 60)
+                   : fmt::format("{}:{:02}", s / 60, s % 60);
+}
+
+}  // namespace
+
+// Everything that changes while running.
+struct Simulation::State {
+  detail::BuiltDomain built;
+  std::unique_ptr<BoundaryProjection> projection;
+  std::unique_ptr<ImplicitStepper> implicit;
+  std::unique_ptr<ExplicitStepper> explicit_stepper;
+  Periodicity periodicity;
+  std::vector<char> is_dirichlet;  // by patch id
+  // The step being projected: Neumann data is handed to the projection as its
+  // average over this step, so that windows [t_start, t_end) that end inside
+  // a step still give the exact integral of f (the 2023 injection stops at T0).
+  std::shared_ptr<std::pair<double, double>> step_window = std::make_shared<std::pair<double, double>>(0.0, 0.0);
+};
+
+Simulation::~Simulation() = default;
+
+double Simulation::crank_sphere(double kappa, double radius, double t) {
+  if (!(t > 0.0)) return 0.0;
+  const double a = kPi * kPi * kappa * t / (radius * radius);
+  double s = 0.0;
+  for (long n = 1; n <= 10'000'000; ++n) {
+    const double term = std::exp(-static_cast<double>(n) * n * a) / (static_cast<double>(n) * n);
+    s += term;
+    if (term < 1e-18) break;
+  }
+  return 1.0 - 6.0 / (kPi * kPi) * s;
+}
+
+double Simulation::crank_slab(double kappa, double length, double t) {
+  if (!(t > 0.0)) return 0.0;
+  const double a = kPi * kPi * kappa * t / (4.0 * length * length);
+  double s = 0.0;
+  for (long k = 0; k <= 10'000'000; ++k) {
+    const double o = 2.0 * k + 1.0;
+    const double term = 8.0 / (o * o * kPi * kPi) * std::exp(-o * o * a);
+    s += term;
+    if (term < 1e-18) break;
+  }
+  return 1.0 - s;
+}
+
+Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::make_unique<State>()) {
+  const Config& c = config_;
+  const int dim = c.run.dim;
+  State& st = *state_;
+  st.built = detail::build_domain(c);
+  domain_ = st.built.domain;
+  free_space_ = st.built.free_space;
+
+  // Patches and their conditions.
+  for (int p = 0; p < domain_->num_patches(); ++p) {
+    PatchInfo info;
+    info.id = p;
+    info.name = domain_->patch_name(p);
+    info.area = domain_->patch_area(p);
+    patches_.push_back(info);
+  }
+  for (std::size_t i = 0; i < c.boundary.size(); ++i) {
+    const BoundarySpec& b = c.boundary[i];
+    const int id = domain_->num_patches() > 0 ? detail::resolve_patch(st.built, b.patch) : -1;
+    if (id < 0)
+      throw ConfigError(fmt::format("boundary[{}].patch", i), quoted(b.patch),
+                        "unknown patch (patches: " + detail::patch_names(st.built) + ")");
+    for (std::size_t j = 0; j < i; ++j)
+      if (detail::resolve_patch(st.built, c.boundary[j].patch) == id)
+        throw ConfigError(fmt::format("boundary[{}].patch", i), quoted(b.patch),
+                          fmt::format("same patch as boundary[{}]", j));
+    PatchInfo& info = patches_[static_cast<std::size_t>(id)];
+    info.kind = b.kind;
+    info.value = b.value.value_or(0.0);
+    info.t_start = b.t_start;
+    info.t_end = b.t_end;
+  }
+  bool any_dirichlet = false, any_condition = false;
+  for (const PatchInfo& p : patches_) {
+    any_dirichlet = any_dirichlet || p.kind == "dirichlet";
+    any_condition = any_condition || p.kind != "no_flux";
+  }
+
+  // Spacing, width, layer, time step, barrier: (36)-(40).
+  Derived& d = derived_;
+  d.volume = domain_->volume();
+  d.length_L = c.particles.length_L > 0.0 ? c.particles.length_L : st.built.length_L;
+  const SpacingRule rule = c.particles.spacing_rule == "sphere_radius" ? SpacingRule::SphereRadius : SpacingRule::Cube;
+  PaperParameters pp;
+  try {
+    pp = paper_parameters(d.volume, static_cast<std::size_t>(c.particles.n_inf), dim, d.length_L, c.physics.kappa,
+                          c.particles.beta_factor, rule);
+  } catch (const InvalidArgument& e) {
+    throw ConfigError("particles", std::string("particles: ") + e.what());
+  }
+  d.dr = pp.dr;
+  d.beta = pp.beta;
+  d.width_s = pp.width_s;
+  d.layer_b = c.particles.layer_b > 0.0 ? c.particles.layer_b : pp.layer_b;
+  if (any_condition && !(d.layer_b < 0.5 * st.built.min_extent))
+    throw ConfigError("particles.layer_b",
+                      fmt::format("{}{}", d.layer_b, c.particles.layer_b > 0.0 ? "" : " (sqrt(length_L dr))"),
+                      fmt::format("must be < half the smallest extent of the domain ({})", 0.5 * st.built.min_extent));
+  d.dt_explicit = pp.dt_explicit;
+  const double dt0 = c.run.dt ? *c.run.dt : c.run.dt_factor * d.dt_explicit;
+  const double steps = std::ceil(c.run.t_end / dt0 * (1.0 - 1e-12));
+  if (!(steps <= 1e9))
+    throw ConfigError(c.run.dt ? "run.dt" : "run.dt_factor", fmt::format("{}", c.run.dt ? *c.run.dt : c.run.dt_factor),
+                      fmt::format("gives {} steps to run.t_end (more than 1e9)", steps));
+  d.n_steps = std::max<std::int64_t>(1, static_cast<std::int64_t>(steps));
+  d.dt = c.run.t_end / static_cast<double>(d.n_steps);
+  d.steps_to_run = c.run.max_steps > 0 ? std::min(d.n_steps, c.run.max_steps) : d.n_steps;
+  d.barrier_C = c.solver.barrier_stiffness ? *c.solver.barrier_stiffness : c.solver.barrier_factor / d.dt_explicit;
+
+  // Net Neumann inflow over [0, t_end] (f is the outward flux: inflow is -f).
+  for (const PatchInfo& p : patches_)
+    if (p.kind == "neumann")
+      d.neumann_net_inflow += -p.value * p.area *
+                              overlap(0.0, c.run.t_end, p.t_start,
+                                      p.t_end.value_or(std::numeric_limits<double>::infinity()));
+
+  // M_inf and the particle mass.
+  const ParticlesSection& pa = c.particles;
+  if (c.diagnostics.M_inf) {
+    d.M_inf = *c.diagnostics.M_inf;
+    d.M_inf_rule = "diagnostics.M_inf";
+  } else if (any_dirichlet) {
+    double ga = 0.0, area = 0.0;
+    for (const PatchInfo& p : patches_)
+      if (p.kind == "dirichlet") {
+        ga += p.value * p.area;
+        area += p.area;
+      }
+    d.M_inf = area > 0.0 ? ga / area * d.volume : 0.0;
+    d.M_inf_rule = "area-weighted mean Dirichlet g x |Omega|";
+  } else if (pa.fill != "empty" && pa.fill_mass) {
+    d.M_inf = *pa.fill_mass + d.neumann_net_inflow;
+    d.M_inf_rule = "particles.fill_mass + net Neumann inflow over [0, t_end]";
+  } else if (pa.mass) {
+    const double n0 = pa.fill == "empty" ? 0.0 : static_cast<double>(pa.fill_count.value_or(pa.n_inf));
+    d.M_inf = n0 * *pa.mass + d.neumann_net_inflow;
+    d.M_inf_rule = "initial fill mass + net Neumann inflow over [0, t_end]";
+    if (!(d.M_inf > 0.0)) {
+      d.M_inf = static_cast<double>(pa.n_inf) * *pa.mass;
+      d.M_inf_rule = "particles.n_inf x particles.mass";
+    }
+  } else if (pa.fill == "empty" && d.neumann_net_inflow > 0.0) {
+    d.M_inf = d.neumann_net_inflow;
+    d.M_inf_rule = "net Neumann inflow over [0, t_end]";
+  } else {
+    d.M_inf = 1.0;
+    d.M_inf_rule = "default 1";
+  }
+  if (!(d.M_inf > 0.0) || !std::isfinite(d.M_inf))
+    throw ConfigError("diagnostics.M_inf", fmt::format("{} ({})", d.M_inf, d.M_inf_rule),
+                      "must be > 0: set diagnostics.M_inf or particles.mass");
+  d.particle_mass = pa.mass ? *pa.mass : d.M_inf / static_cast<double>(pa.n_inf);
+
+  if (pa.fill != "empty") {
+    if (pa.fill_count) {
+      d.fill_count = *pa.fill_count;
+    } else if (pa.fill_mass) {
+      d.fill_count = std::llround(*pa.fill_mass / d.particle_mass);
+    } else {
+      d.fill_count = pa.n_inf;
+    }
+    if (d.fill_count > 100'000'000)
+      throw ConfigError(pa.fill_count ? "particles.fill_count" : "particles.fill_mass",
+                        fmt::format("{} particles", d.fill_count), "must give at most 1e8 particles");
+  }
+
+  // Diagnostics centre, J_inf, reference curves.
+  d.center = c.diagnostics.center ? *c.diagnostics.center : st.built.centroid;
+  for (int k = dim; k < 3; ++k) d.center[k] = 0.0;
+  if (c.diagnostics.J_inf) {
+    d.J_inf = *c.diagnostics.J_inf;
+    d.J_inf_rule = "diagnostics.J_inf";
+  } else if (!free_space_ && st.built.mean_square_distance) {
+    d.J_inf = d.M_inf * st.built.mean_square_distance(d.center);
+    d.J_inf_rule = "uniform density M_inf/|Omega| about diagnostics.center";
+  }
+  const std::string& ref = c.diagnostics.reference;
+  if (ref == "crank_sphere") {
+    d.reference_radius = c.diagnostics.reference_radius ? c.diagnostics.reference_radius : st.built.ball_radius;
+    if (!d.reference_radius)
+      throw ConfigError("diagnostics.reference_radius", "(missing)",
+                        "required for reference = \"crank_sphere\" on a domain that is not a ball");
+  } else if (ref == "crank_slab") {
+    d.reference_length = c.diagnostics.reference_length;
+    if (!d.reference_length && c.domain.type == "box") {
+      int face = -1, count = 0;
+      for (const PatchInfo& p : patches_)
+        if (p.kind == "dirichlet") {
+          face = p.id;
+          ++count;
+        }
+      if (count == 1 && face < 2 * dim) d.reference_length = c.domain.hi[face / 2] - c.domain.lo[face / 2];
+    }
+    if (!d.reference_length)
+      throw ConfigError("diagnostics.reference_length", "(missing)",
+                        "required for reference = \"crank_slab\" unless the domain is a box with one Dirichlet face");
+  }
+
+  // Boundary projection, barrier, stepper.
+  std::vector<PatchCondition> conditions;
+  st.is_dirichlet.assign(patches_.size(), 0);
+  for (PatchInfo& p : patches_) {
+    if (p.kind == "no_flux") continue;
+    PatchCondition pc;
+    pc.patch = p.id;
+    pc.data_is_constant = true;
+    if (p.kind == "dirichlet") {
+      pc.kind = PatchKind::Dirichlet;
+      const double g = p.value;
+      pc.data = [g](const Vec3&, double) { return g; };
+      st.is_dirichlet[static_cast<std::size_t>(p.id)] = 1;
+    } else {
+      pc.kind = PatchKind::Neumann;
+      const double f = p.value, a = p.t_start, b = p.t_end.value_or(std::numeric_limits<double>::infinity());
+      const auto window = st.step_window;
+      pc.data = [f, a, b, window](const Vec3&, double) {
+        const double t0 = window->first, t1 = window->second;
+        return t1 > t0 ? f * overlap(t0, t1, a, b) / (t1 - t0) : 0.0;
+      };
+    }
+    p.condition = static_cast<int>(conditions.size());
+    conditions.push_back(std::move(pc));
+  }
+  ProjectionOptions po;
+  po.layer_b = d.layer_b;
+  po.dirichlet_target = pa.dirichlet_target == "paper_eq34" ? DirichletTarget::PaperEq34 : DirichletTarget::CellIntegral;
+  try {
+    po.validate();
+    st.projection = std::make_unique<BoundaryProjection>(domain_, std::move(conditions), po, d.particle_mass, d.width_s);
+  } catch (const InvalidArgument& e) {
+    throw ConfigError("boundary", std::string("boundary: ") + e.what());
+  }
+
+  st.periodicity = domain_->is_periodic() ? Periodicity::from_domain(*domain_) : Periodicity::none(dim);
+  if (domain_->is_periodic()) {
+    // The neighbour list needs two list radii per period (minimum image); check it now, not at step 1.
+    const double radius = cutoff_radius(d.width_s, c.solver.kernel_tolerance) + c.solver.skin_factor * d.width_s;
+    for (int k = 0; k < dim; ++k) {
+      const double side = c.domain.hi[k] - c.domain.lo[k];
+      if (side < 2.0 * radius)
+        throw ConfigError("domain.hi", fmt::format("[{}, {}, {}]", c.domain.hi[0], c.domain.hi[1], c.domain.hi[2]),
+                          fmt::format("the periodic box side {} (axis {}) must be at least twice the neighbour-list "
+                                      "radius {}: enlarge the box or raise particles.n_inf",
+                                      side, "xyz"[k], radius));
+    }
+  }
+  Barrier barrier;
+  if (!free_space_ && !domain_->is_periodic()) {
+    try {
+      const std::vector<int> inflated = st.projection->dirichlet_patches();
+      if (c.domain.type == "box" && c.domain.subpatches.empty() && !inflated.empty()) {
+        // Omega' = Omega u B^ext is again a box: the box extended by b over its
+        // Dirichlet faces. Its distance is exact and continuous, whereas
+        // inflating by patch (Barrier's inflated_patches) jumps by up to b
+        // where the closest face changes next to a Dirichlet face.
+        Vec3 lo = c.domain.lo, hi = c.domain.hi;
+        for (int p : inflated) (p % 2 == 0 ? lo : hi)[p / 2] += (p % 2 == 0 ? -d.layer_b : d.layer_b);
+        barrier = Barrier(make_box(dim, lo, hi), d.barrier_C);
+        d.barrier_domain = "box extended by b over its Dirichlet faces";
+      } else {
+        barrier = Barrier(domain_, d.barrier_C, inflated, d.layer_b);
+        d.barrier_domain = inflated.empty() ? "Omega" : "Omega inflated by b over the Dirichlet patches";
+      }
+    } catch (const InvalidArgument& e) {
+      throw ConfigError("solver.barrier_stiffness", std::string("barrier: ") + e.what());
+    }
+  }
+  const SolverSection& s = c.solver;
+  NeighborOptions nb;
+  nb.kernel_tolerance = s.kernel_tolerance;
+  nb.skin = -1.0;
+  nb.skin_factor = s.skin_factor;
+  try {
+    if (s.stepper == "implicit") {
+      ImplicitOptions io;
+      io.minimizer.backend = backend_from_string(s.backend);
+      io.minimizer.algorithm = algorithm_from_string(s.algorithm);
+      io.minimizer.max_iterations = static_cast<int>(s.max_iterations);
+      io.minimizer.max_evaluations = static_cast<int>(s.max_evaluations);
+      io.minimizer.lbfgs_memory = static_cast<int>(s.lbfgs_memory);
+      io.displacement_tolerance = s.displacement_tolerance;
+      io.width_mode = width_mode_from_string(s.width_mode);
+      io.width_metric = s.width_metric == "exact" ? WidthMetric::ExactGaussian : WidthMetric::AsPrinted;
+      io.kappa = c.physics.kappa;
+      io.rho_ref = c.physics.rho_ref;
+      io.neighbor = nb;
+      io.max_halvings = static_cast<int>(s.max_halvings);
+      io.energy_tolerance = s.energy_tolerance;
+      io.validate();
+      st.implicit = std::make_unique<ImplicitStepper>(dim, io, barrier, st.periodicity);
+    } else {
+      ExplicitOptions eo;
+      eo.scheme = explicit_scheme_from_string(s.explicit_scheme);
+      eo.kappa = c.physics.kappa;
+      eo.rho_ref = c.physics.rho_ref;
+      eo.neighbor = nb;
+      eo.validate();
+      st.explicit_stepper = std::make_unique<ExplicitStepper>(dim, eo, barrier, st.periodicity);
+    }
+  } catch (const InvalidArgument& e) {
+    throw ConfigError("solver", std::string("solver: ") + e.what());
+  }
+}
+
+nlohmann::json Simulation::describe() const {
+  const Config& c = config_;
+  const Derived& d = derived_;
+  nlohmann::json cfg;
+  cfg["run"] = {{"dim", c.run.dim},           {"t_end", c.run.t_end},         {"dt", opt(c.run.dt)},
+                {"dt_factor", c.run.dt_factor}, {"seed", c.run.seed},         {"max_steps", c.run.max_steps},
+                {"vtk_interval", c.run.vtk_interval}, {"threads", c.run.threads}};
+  nlohmann::json subs = nlohmann::json::array();
+  for (const SubPatchSpec& sp : c.domain.subpatches)
+    subs.push_back({{"name", sp.name},
+                    {"on", sp.on},
+                    {"center", sp.center ? to_json(*sp.center) : nlohmann::json(nullptr)},
+                    {"radius", sp.radius}});
+  cfg["domain"] = {{"type", c.domain.type},
+                   {"center", to_json(c.domain.center)},
+                   {"radius", c.domain.radius},
+                   {"lo", to_json(c.domain.lo)},
+                   {"hi", to_json(c.domain.hi)},
+                   {"end_a", to_json(c.domain.end_a)},
+                   {"end_b", to_json(c.domain.end_b)},
+                   {"obstacle_center", c.domain.obstacle_center ? to_json(*c.domain.obstacle_center) : nullptr},
+                   {"obstacle_radius", opt(c.domain.obstacle_radius)},
+                   {"obstacle_axis", c.domain.obstacle_axis},
+                   {"subpatch", subs}};
+  const ParticlesSection& p = c.particles;
+  cfg["particles"] = {{"n_inf", p.n_inf},
+                      {"mass", opt(p.mass)},
+                      {"spacing_rule", p.spacing_rule},
+                      {"beta_factor", p.beta_factor},
+                      {"layer_b", p.layer_b},
+                      {"length_L", p.length_L},
+                      {"dirichlet_target", p.dirichlet_target},
+                      {"fill", p.fill},
+                      {"fill_count", opt(p.fill_count)},
+                      {"fill_mass", opt(p.fill_mass)},
+                      {"fill_center", p.fill_center ? to_json(*p.fill_center) : nullptr},
+                      {"fill_sigma", p.fill_sigma}};
+  cfg["physics"] = {{"kappa", c.physics.kappa},
+                    {"rho_ref", c.physics.rho_ref},
+                    {"velocity", to_json(c.physics.velocity)},
+                    {"source_rate", c.physics.source_rate}};
+  nlohmann::json bs = nlohmann::json::array();
+  for (const BoundarySpec& b : c.boundary)
+    bs.push_back({{"patch", b.patch}, {"kind", b.kind}, {"value", opt(b.value)}, {"t_start", b.t_start},
+                  {"t_end", opt(b.t_end)}});
+  cfg["boundary"] = bs;
+  const SolverSection& s = c.solver;
+  cfg["solver"] = {{"stepper", s.stepper},
+                   {"backend", s.backend},
+                   {"algorithm", s.algorithm},
+                   {"explicit_scheme", s.explicit_scheme},
+                   {"width_mode", s.width_mode},
+                   {"width_metric", s.width_metric},
+                   {"displacement_tolerance", s.displacement_tolerance},
+                   {"max_iterations", s.max_iterations},
+                   {"max_evaluations", s.max_evaluations},
+                   {"lbfgs_memory", s.lbfgs_memory},
+                   {"max_halvings", s.max_halvings},
+                   {"energy_tolerance", s.energy_tolerance},
+                   {"barrier_factor", s.barrier_factor},
+                   {"barrier_stiffness", opt(s.barrier_stiffness)},
+                   {"kernel_tolerance", s.kernel_tolerance},
+                   {"skin_factor", s.skin_factor}};
+  cfg["diagnostics"] = {{"center", c.diagnostics.center ? to_json(*c.diagnostics.center) : nullptr},
+                        {"M_inf", opt(c.diagnostics.M_inf)},
+                        {"J_inf", opt(c.diagnostics.J_inf)},
+                        {"reference", c.diagnostics.reference},
+                        {"reference_radius", opt(c.diagnostics.reference_radius)},
+                        {"reference_length", opt(c.diagnostics.reference_length)}};
+
+  nlohmann::json pj = nlohmann::json::array();
+  for (const PatchInfo& pi : patches_)
+    pj.push_back({{"id", pi.id},
+                  {"name", pi.name},
+                  {"area", pi.area},
+                  {"kind", pi.kind},
+                  {"value", pi.value},
+                  {"t_start", pi.t_start},
+                  {"t_end", opt(pi.t_end)}});
+  nlohmann::json der = {{"volume", d.volume},
+                        {"dr", d.dr},
+                        {"beta", d.beta},
+                        {"width_s", d.width_s},
+                        {"length_L", d.length_L},
+                        {"layer_b", d.layer_b},
+                        {"dt_explicit", d.dt_explicit},
+                        {"dt", d.dt},
+                        {"n_steps", d.n_steps},
+                        {"steps_to_run", d.steps_to_run},
+                        {"barrier_C", d.barrier_C},
+                        {"barrier_domain", d.barrier_domain},
+                        {"particle_mass", d.particle_mass},
+                        {"M_inf", d.M_inf},
+                        {"M_inf_rule", d.M_inf_rule},
+                        {"J_inf", opt(d.J_inf)},
+                        {"J_inf_rule", d.J_inf_rule},
+                        {"center", to_json(d.center)},
+                        {"fill_count", d.fill_count},
+                        {"neumann_net_inflow", d.neumann_net_inflow},
+                        {"reference_radius", opt(d.reference_radius)},
+                        {"reference_length", opt(d.reference_length)},
+                        {"patches", pj}};
+  return {{"config", cfg}, {"derived", der}};
+}
+
+RunResult Simulation::run(const RunOptions& options) {
+  const Config& c = config_;
+  const Derived& d = derived_;
+  State& st = *state_;
+  const int dim = c.run.dim;
+  if (c.run.threads > 0) omp_set_num_threads(c.run.threads);
+  const auto wall0 = Clock::now();
+  auto wall = [&] { return std::chrono::duration<double>(Clock::now() - wall0).count(); };
+
+  RunResult result;
+  Rng rng(static_cast<std::uint64_t>(c.run.seed));
+  ParticleSet particles(dim);
+  const std::filesystem::path& out = options.out_dir;
+  const bool write = !out.empty();
+  AppendFile series_file, timing_file;
+  std::vector<std::pair<double, std::string>> snapshots;
+  std::int64_t last_snapshot = -1;
+
+  // Column layout of series.csv (fixed by the configuration, not by the run).
+  const bool has_j_ratio = d.J_inf.has_value();
+  const std::string& ref = c.diagnostics.reference;
+  const std::string ref_column = ref == "free_space" ? "reference_polar_inertia" : "reference_mass_ratio";
+  std::string header =
+      "step,t,dt,n_particles,mass_total,mass_inside,polar_inertia,inserted,removed,energy,iterations,evaluations,"
+      "mass_with_layer,polar_inertia_with_layer,polar_inertia_total,n_inside,n_buffer,n_outside,inserted_total,"
+      "removed_total,transport,entropy,barrier,gradient_norm,list_builds,halvings,mean_age,max_age,l1_mass,"
+      "l1_polar_inertia,mass_ratio";
+  if (has_j_ratio) header += ",polar_inertia_ratio";
+  if (ref != "none") header += "," + ref_column;
+  header += "\n";
+
+  // Ledger totals.
+  long source_inserted = 0, source_removed = 0;
+  double source_mass_in = 0.0, source_mass_out = 0.0;
+  std::int64_t inserted_total = 0, removed_total = 0;
+  double mass_in_total = 0.0, mass_out_total = 0.0;
+  std::int64_t n0 = 0;
+  double M0 = 0.0;
+  // Trapezoid L1 sums (the series carries the paper's rectangle sums).
+  double trap_mass_inside = 0.0, trap_mass_layer = 0.0, trap_j_inside = 0.0, trap_j_layer = 0.0;
+  double ref_abs_dev = 0.0;
+  std::int64_t ref_rows = 0;
+  double J0_total = 0.0;
+  std::int64_t total_iterations = 0, total_evaluations = 0, total_rejected = 0, total_halvings = 0;
+  StepRecord prev;
+  std::vector<std::int32_t> region;
+
+  auto diagnostics = [&](std::int64_t step, double t, const StepSummary* sum, long ins, long rem) {
+    StepRecord r;
+    r.step = step;
+    r.t = t;
+    r.dt = step == 0 ? 0.0 : d.dt;
+    const std::size_t n = particles.size();
+    region.assign(n, kElsewhere);
+    double age_sum = 0.0;
+    for (std::size_t p = 0; p < n; ++p) {
+      const Vec3& x = particles.positions()[p];
+      const double m = particles.masses()[p];
+      const BoundaryQuery q = domain_->query(x);
+      const double r2 = (x - d.center).squaredNorm();
+      r.mass_total += m;
+      r.polar_inertia_total += m * r2;
+      if (q.signed_distance <= 0.0) {
+        region[p] = kInside;
+        ++r.n_inside;
+        r.mass_inside += m;
+        r.polar_inertia += m * r2;
+      } else if (q.patch >= 0 && st.is_dirichlet[static_cast<std::size_t>(q.patch)] &&
+                 q.signed_distance <= d.layer_b) {
+        region[p] = kBuffer;
+        ++r.n_buffer;
+      } else {
+        ++r.n_outside;
+      }
+      if (region[p] != kElsewhere) {
+        r.mass_with_layer += m;
+        r.polar_inertia_with_layer += m * r2;
+      }
+      const double age = t - particles.birth_times()[p];
+      age_sum += age;
+      r.max_age = std::max(r.max_age, age);
+    }
+    r.n_particles = static_cast<std::int64_t>(n);
+    r.mean_age = n ? age_sum / static_cast<double>(n) : 0.0;
+    r.inserted = ins;
+    r.removed = rem;
+    r.inserted_total = inserted_total;
+    r.removed_total = removed_total;
+    if (sum) {
+      r.energy = sum->f_after;
+      r.transport = sum->parts_after.transport;
+      r.entropy = sum->parts_after.entropy;
+      r.barrier = sum->parts_after.barrier;
+      r.gradient_norm = sum->gradient_norm;
+      r.iterations = sum->iterations;
+      r.evaluations = sum->evaluations;
+      r.list_builds = sum->list_builds;
+      r.halvings = sum->halvings;
+      r.step_seconds = sum->wall_seconds;
+      r.solver_seconds = sum->solver_seconds;
+    }
+    // (46a)-(46b) as printed: sum over k = 0..K of the value at t_k times dt, all particles.
+    r.l1_mass = prev.l1_mass + r.mass_total * d.dt;
+    r.l1_polar_inertia = prev.l1_polar_inertia + r.polar_inertia_total * d.dt;
+    if (step == 0) {
+      r.l1_mass = r.mass_total * d.dt;
+      r.l1_polar_inertia = r.polar_inertia_total * d.dt;
+      J0_total = r.polar_inertia_total;
+    } else {
+      trap_mass_inside += 0.5 * (prev.mass_inside + r.mass_inside) * d.dt;
+      trap_mass_layer += 0.5 * (prev.mass_with_layer + r.mass_with_layer) * d.dt;
+      trap_j_inside += 0.5 * (prev.polar_inertia + r.polar_inertia) * d.dt;
+      trap_j_layer += 0.5 * (prev.polar_inertia_with_layer + r.polar_inertia_with_layer) * d.dt;
+    }
+    r.mass_ratio = r.mass_inside / d.M_inf;
+    if (d.J_inf) r.polar_inertia_ratio = r.polar_inertia / *d.J_inf;
+    if (ref == "crank_sphere") r.reference = crank_sphere(c.physics.kappa, *d.reference_radius, t);
+    if (ref == "crank_slab") r.reference = crank_slab(c.physics.kappa, *d.reference_length, t);
+    if (ref == "free_space") r.reference = J0_total + 2.0 * dim * c.physics.kappa * M0 * t;
+    if (r.reference && step > 0) {
+      ref_abs_dev += ref == "free_space" ? std::abs(r.polar_inertia_total - *r.reference) : std::abs(r.mass_ratio - *r.reference);
+      ++ref_rows;
+    }
+    r.wall_seconds = wall();
+    return r;
+  };
+
+  auto csv_row = [&](const StepRecord& r) {
+    std::string line;
+    auto num = [&](double v, const char* name) {
+      if (!std::isfinite(v))
+        throw RunError(fmt::format("non-finite {} = {} at step {} (t = {}); nothing non-finite is written", name, v,
+                                   r.step, r.t));
+      line += fmt::format("{},", v);
+    };
+    auto integer = [&](std::int64_t v) { line += fmt::format("{},", v); };
+    integer(r.step);
+    num(r.t, "t");
+    num(r.dt, "dt");
+    integer(r.n_particles);
+    num(r.mass_total, "mass_total");
+    num(r.mass_inside, "mass_inside");
+    num(r.polar_inertia, "polar_inertia");
+    integer(r.inserted);
+    integer(r.removed);
+    num(r.energy, "energy");
+    integer(r.iterations);
+    integer(r.evaluations);
+    num(r.mass_with_layer, "mass_with_layer");
+    num(r.polar_inertia_with_layer, "polar_inertia_with_layer");
+    num(r.polar_inertia_total, "polar_inertia_total");
+    integer(r.n_inside);
+    integer(r.n_buffer);
+    integer(r.n_outside);
+    integer(r.inserted_total);
+    integer(r.removed_total);
+    num(r.transport, "transport");
+    num(r.entropy, "entropy");
+    num(r.barrier, "barrier");
+    num(r.gradient_norm, "gradient_norm");
+    integer(r.list_builds);
+    integer(r.halvings);
+    num(r.mean_age, "mean_age");
+    num(r.max_age, "max_age");
+    num(r.l1_mass, "l1_mass");
+    num(r.l1_polar_inertia, "l1_polar_inertia");
+    num(r.mass_ratio, "mass_ratio");
+    if (has_j_ratio) num(*r.polar_inertia_ratio, "polar_inertia_ratio");
+    if (r.reference) num(*r.reference, ref_column.c_str());
+    line.back() = '\n';
+    return line;
+  };
+
+  auto snapshot = [&](const StepRecord& r) {
+    if (!write || last_snapshot == r.step) return;
+    for (const Vec3& x : particles.positions())
+      if (!x.allFinite()) throw RunError(fmt::format("non-finite particle position at step {}", r.step));
+    const std::string name = fmt::format("particles_{:05d}.vtp", r.step);
+    write_file_atomic(out / name, vtp_document(particles, r.t, region));
+    snapshots.emplace_back(r.t, name);
+    write_file_atomic(out / "particles.pvd", pvd_document(snapshots));
+    last_snapshot = r.step;
+  };
+
+  auto ledger_json = [&]() {
+    nlohmann::json patches = nlohmann::json::array();
+    for (const PatchInfo& p : patches_) {
+      nlohmann::json j = {{"patch", p.name}, {"kind", p.kind}};
+      PatchLedger l;
+      if (p.condition >= 0) l = st.projection->ledger()[static_cast<std::size_t>(p.condition)];
+      j["inserted"] = l.inserted;
+      j["removed"] = l.removed;
+      j["mass_inserted"] = l.mass_inserted;
+      j["mass_removed"] = l.mass_removed;
+      j["flux_integral"] = l.flux_integral;
+      j["carry"] = l.carry;
+      j["deficit"] = l.deficit;
+      patches.push_back(j);
+    }
+    return nlohmann::json{{"initial_particles", n0},
+                          {"initial_mass", M0},
+                          {"inserted", inserted_total},
+                          {"removed", removed_total},
+                          {"mass_inserted", mass_in_total},
+                          {"mass_removed", mass_out_total},
+                          {"source", {{"inserted", source_inserted},
+                                      {"removed", source_removed},
+                                      {"mass_inserted", source_mass_in},
+                                      {"mass_removed", source_mass_out}}},
+                          {"patches", patches}};
+  };
+
+  auto summary = [&](const std::string& status, const std::string& error, const StepRecord& last) {
+    nlohmann::json j = describe();
+    j["otfp_version"] = version();
+    j["status"] = status;
+    j["error"] = error;
+    j["config_file"] = c.source;
+    j["overrides"] = c.overrides;
+    j["seed"] = c.run.seed;
+    j["wall_seconds"] = wall();
+    j["threads"] = omp_get_max_threads();
+    j["final"] = {{"step", last.step},
+                  {"t", last.t},
+                  {"n_particles", last.n_particles},
+                  {"n_inside", last.n_inside},
+                  {"n_buffer", last.n_buffer},
+                  {"n_outside", last.n_outside},
+                  {"mass_total", last.mass_total},
+                  {"mass_inside", last.mass_inside},
+                  {"mass_with_layer", last.mass_with_layer},
+                  {"polar_inertia", last.polar_inertia},
+                  {"polar_inertia_with_layer", last.polar_inertia_with_layer},
+                  {"polar_inertia_total", last.polar_inertia_total},
+                  {"mass_ratio", last.mass_ratio},
+                  {"polar_inertia_ratio", opt(last.polar_inertia_ratio)},
+                  {"mean_age", last.mean_age},
+                  {"max_age", last.max_age}};
+    j["l1"] = {{"rule_series", "rectangle sum over k = 0..K of the value at t_k times dt, all particles (46) as printed"},
+               {"mass_rectangle", last.l1_mass},
+               {"polar_inertia_rectangle", last.l1_polar_inertia},
+               {"rule_trapezoid", "trapezoid rule over [0, t]"},
+               {"mass_inside_trapezoid", trap_mass_inside},
+               {"mass_with_layer_trapezoid", trap_mass_layer},
+               {"polar_inertia_inside_trapezoid", trap_j_inside},
+               {"polar_inertia_with_layer_trapezoid", trap_j_layer}};
+    if (ref != "none")
+      j["reference"] = {{"curve", ref},
+                        {"column", ref_column},
+                        {"final", opt(last.reference)},
+                        {"mean_abs_deviation", ref_rows ? ref_abs_dev / static_cast<double>(ref_rows) : 0.0},
+                        {"deviation_of", ref == "free_space" ? "polar_inertia_total" : "mass_ratio"}};
+    j["ledger"] = ledger_json();
+    j["solver_totals"] = {{"iterations", total_iterations},
+                          {"evaluations", total_evaluations},
+                          {"rejected_solves", total_rejected},
+                          {"halvings", total_halvings}};
+    return j;
+  };
+
+  const bool progress = options.progress;
+  auto last_progress = Clock::now() - std::chrono::seconds(1);
+  auto show_progress = [&](const StepRecord& r, bool final_line) {
+    if (!progress) return;
+    const auto now = Clock::now();
+    if (!final_line && now - last_progress < std::chrono::milliseconds(200)) return;
+    last_progress = now;
+    const double el = wall();
+    const double eta = r.step > 0 ? el / static_cast<double>(r.step) * static_cast<double>(d.steps_to_run - r.step) : 0.0;
+    const double its = r.step > 0 ? static_cast<double>(total_iterations) / static_cast<double>(r.step) : 0.0;
+    std::fprintf(stderr, "\rstep %lld/%lld  t=%.4g  n=%lld  M/M_inf=%.4f  it/step=%.1f  ETA %s   ",
+                 static_cast<long long>(r.step), static_cast<long long>(d.steps_to_run), r.t,
+                 static_cast<long long>(r.n_particles), r.mass_ratio, its, hms(eta).c_str());
+    if (final_line) std::fputc('\n', stderr);
+    std::fflush(stderr);
+  };
+
+  StepRecord last;
+  try {
+    // Initial fill.
+    const double m_p = d.particle_mass;
+    for (std::int64_t i = 0; i < d.fill_count; ++i) {
+      Vec3 x;
+      if (c.particles.fill == "gaussian") {
+        const Vec3 ctr = c.particles.fill_center.value_or(d.center);
+        x = Vec3::Zero();
+        for (int k = 0; k < dim; ++k) x[k] = ctr[k] + c.particles.fill_sigma * rng.normal();
+        x = domain_->wrap(x);
+      } else {
+        x = domain_->sample_interior(rng);
+      }
+      particles.add(x, d.width_s, m_p, 0.0);
+    }
+    n0 = static_cast<std::int64_t>(particles.size());
+    M0 = particles.total_mass();
+
+    if (write) {
+      std::filesystem::create_directories(out);
+      series_file = AppendFile(out / "series.csv", header);
+      timing_file = AppendFile(out / "timing.csv", "step,t,wall_seconds,step_seconds,solver_seconds\n");
+      write_file_atomic(out / "summary.json", summary("running", "", StepRecord{}).dump(2) + "\n");
+    }
+
+    auto emit = [&](const StepRecord& r) {
+      const std::string line = csv_row(r);
+      if (write) {
+        series_file.append(line);
+        timing_file.append(fmt::format("{},{},{},{},{}\n", r.step, r.t, r.wall_seconds, r.step_seconds, r.solver_seconds));
+        if (r.step == 0 || r.step == d.steps_to_run || (c.run.vtk_interval > 0 && r.step % c.run.vtk_interval == 0))
+          snapshot(r);
+      }
+      if (options.keep_series) result.series.push_back(r);
+      prev = r;
+      last = r;
+      show_progress(r, r.step == d.steps_to_run);
+    };
+
+    emit(diagnostics(0, 0.0, nullptr, 0, 0));
+
+    const bool advect_on = c.physics.velocity.head(dim).squaredNorm() > 0.0;
+    const Vec3 u = c.physics.velocity;
+    const VelocityField velocity = [u](const Vec3&, double) { return u; };
+    const double s_rate = c.physics.source_rate;
+    const SourceField source = [s_rate](const Vec3&, double) { return s_rate; };
+
+    for (std::int64_t k = 1; k <= d.steps_to_run; ++k) {
+      const double t0 = static_cast<double>(k - 1) * d.dt;
+      const double t1 = k == d.n_steps ? c.run.t_end : static_cast<double>(k) * d.dt;
+      const double h = t1 - t0;
+      long ins = 0, rem = 0;
+      // Algorithm 1, line 2: advection.
+      if (advect_on) {
+        advect(particles, velocity, t0, h, 1);
+        for (Vec3& x : particles.positions()) x = domain_->wrap(x);
+      }
+      // Line 3: source.
+      if (s_rate != 0.0) {
+        const SourceResult sr = apply_source(particles, source, t0, h, rng);
+        for (Vec3& x : particles.positions()) x = domain_->wrap(x);
+        source_inserted += sr.inserted;
+        source_removed += sr.removed;
+        source_mass_in += sr.mass_inserted;
+        source_mass_out += sr.mass_removed;
+        ins += sr.inserted;
+        rem += sr.removed;
+        mass_in_total += sr.mass_inserted;
+        mass_out_total += sr.mass_removed;
+      }
+      // Line 4: diffusion. Nothing to move in an empty set.
+      StepSummary sum;
+      if (particles.empty()) {
+        sum.accepted = true;
+        sum.dt = h;
+      } else {
+        sum = st.implicit ? st.implicit->step(particles, h) : st.explicit_stepper->step(particles, h);
+      }
+      total_iterations += sum.iterations;
+      total_evaluations += sum.evaluations;
+      total_rejected += sum.rejected_solves;
+      total_halvings += sum.halvings;
+      if (!sum.accepted)
+        throw RunError(fmt::format("step {} (t = {} -> {}): diffusion step not accepted ({}; {} halvings): {}", k, t0,
+                                   t1, to_string(sum.reason), sum.halvings, sum.message));
+      // Lines 5-23: projection onto the boundary conditions.
+      *st.step_window = {t0, t1};
+      const PatchLedger pl = st.projection->apply(particles, t0, h, rng);
+      ins += pl.inserted;
+      rem += pl.removed;
+      mass_in_total += pl.mass_inserted;
+      mass_out_total += pl.mass_removed;
+      inserted_total += ins;
+      removed_total += rem;
+
+      // Ledger: n(t) = n(0) + inserted - removed, and the same for the mass.
+      const std::int64_t expect_n = n0 + inserted_total - removed_total;
+      if (static_cast<std::int64_t>(particles.size()) != expect_n)
+        throw RunError(fmt::format("particle ledger violated at step {} (t = {}): n = {} but n(0) + inserted - removed "
+                                   "= {} + {} - {} = {}",
+                                   k, t1, particles.size(), n0, inserted_total, removed_total, expect_n));
+      const double mass_now = particles.total_mass();
+      const double mass_expect = M0 + mass_in_total - mass_out_total;
+      if (!(std::abs(mass_now - mass_expect) <= 1e-9 * (M0 + mass_in_total + m_p)))
+        throw RunError(fmt::format("mass ledger violated at step {} (t = {}): mass = {} but M(0) + inserted - removed "
+                                   "= {}",
+                                   k, t1, mass_now, mass_expect));
+      emit(diagnostics(k, t1, &sum, ins, rem));
+    }
+    result.status = "completed";
+    result.exit_code = 0;
+  } catch (const std::exception& e) {
+    result.status = "failed";
+    result.error = e.what();
+    result.exit_code = 1;
+    if (progress) std::fputc('\n', stderr);
+    // The state the failing step started from (a rejected diffusion step leaves
+    // it untouched), for inspection; not part of particles.pvd.
+    if (write) {
+      try {
+        bool finite = true;
+        for (const Vec3& x : particles.positions()) finite = finite && x.allFinite();
+        if (finite) {
+          std::vector<std::int32_t> flags(particles.size(), kElsewhere);
+          for (std::size_t p = 0; p < particles.size(); ++p) {
+            const BoundaryQuery q = domain_->query(particles.positions()[p]);
+            if (q.signed_distance <= 0.0)
+              flags[p] = kInside;
+            else if (q.patch >= 0 && st.is_dirichlet[static_cast<std::size_t>(q.patch)] && q.signed_distance <= d.layer_b)
+              flags[p] = kBuffer;
+          }
+          std::filesystem::create_directories(out);
+          write_file_atomic(out / "particles_failed.vtp", vtp_document(particles, last.t, flags));
+        }
+      } catch (const std::exception&) {
+        // Best effort: the error being reported matters more.
+      }
+    }
+  }
+  result.last = last;
+  result.summary = summary(result.status, result.error, last);
+  if (write) {
+    try {
+      std::filesystem::create_directories(out);
+      write_file_atomic(out / "summary.json", result.summary.dump(2) + "\n");
+    } catch (const std::exception& e) {
+      if (result.exit_code == 0) {
+        result.status = "failed";
+        result.error = e.what();
+        result.exit_code = 1;
+      }
+    }
+  }
+  return result;
+}
+
+}  // namespace otfp::app
