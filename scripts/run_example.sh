@@ -10,5 +10,8 @@ cmake -S . -B build -DCMAKE_BUILD_TYPE=Release
 cmake --build build -j "$jobs" --target otfp_cli implicit_large_steps
 rm -rf out/sphere_dirichlet
 ./build/src/cli/otfp run examples/sphere_dirichlet.toml --out out/sphere_dirichlet "$@"
-python3 scripts/plot.py out/sphere_dirichlet
+# Debian's interpreter has the matplotlib that install_deps.sh installed.
+PY=python3
+[ -x /usr/bin/python3 ] && PY=/usr/bin/python3
+"$PY" scripts/plot.py out/sphere_dirichlet
 echo "outputs and plots in out/sphere_dirichlet/"
