@@ -38,6 +38,29 @@ double crank_slab_uptake(double tau) {
   return 1.0 - s;
 }
 
+double crank_sphere_polar_inertia(double tau) {
+  require(std::isfinite(tau) && tau >= 0.0, "kappa t / R^2", tau, "must be finite and >= 0");
+  if (tau == 0.0) return 0.0;
+  const double s = exp_series(tau, M_PI * M_PI, 1, 1, [](long n) {
+    const double a2 = static_cast<double>(n) * static_cast<double>(n) * M_PI * M_PI;
+    return 12.0 / (a2 * a2) - 2.0 / a2;
+  });
+  return 1.0 + 5.0 * s;
+}
+
+double crank_slab_density(double tau, double depth) {
+  require(std::isfinite(tau) && tau >= 0.0, "kappa t / L^2", tau, "must be finite and >= 0");
+  require(std::isfinite(depth) && depth >= 0.0 && depth <= 1.0, "depth / L", depth, "must be in [0, 1]");
+  if (depth == 0.0) return 1.0;
+  if (tau == 0.0) return 0.0;
+  const double theta = 0.5 * M_PI * (1.0 - depth);
+  const double s = exp_series(tau, M_PI * M_PI / 4.0, 1, 2, [theta](long n) {
+    const double sign = (n / 2) % 2 == 0 ? 1.0 : -1.0;  // n = 2k + 1: (-1)^k
+    return sign / static_cast<double>(n) * std::cos(static_cast<double>(n) * theta);
+  });
+  return 1.0 - 4.0 / M_PI * s;
+}
+
 double cosine_mode_decay(double kappa, double wavenumber, double t) {
   return std::exp(-kappa * wavenumber * wavenumber * t);
 }

@@ -11,6 +11,16 @@ double crank_sphere_uptake(double kappa_t_over_R2);
 // M(t)/M_inf = 1 - sum_{k>=0} 8/((2k+1)^2 pi^2) exp(-(2k+1)^2 pi^2 kappa t / (4 L^2)).
 double crank_slab_uptake(double kappa_t_over_L2);
 
+// Same sphere: polar inertia about the centre relative to its steady value
+// J_inf = (3/5) M_inf R^2. From the radial profile (Crank 6.18) integrated
+// against r^2: J/J_inf = 1 + 5 sum_n exp(-n^2 pi^2 tau) (12/(n pi)^4 - 2/(n pi)^2).
+double crank_sphere_polar_inertia(double kappa_t_over_R2);
+
+// Same slab: rho/g at depth xi from the held face (Crank 4.17 with the no-flux
+// face as the symmetry plane):
+// 1 - (4/pi) sum_k (-1)^k/(2k+1) exp(-(2k+1)^2 pi^2 tau / 4) cos((2k+1) pi (1 - xi/L) / 2).
+double crank_slab_density(double kappa_t_over_L2, double depth_over_L);
+
 // Free space: growth of the second moment per axis, 2 kappa t.
 inline double free_space_variance_growth(double kappa, double t) { return 2.0 * kappa * t; }
 

@@ -13,6 +13,7 @@
 
 #include "otfp_app/config.hpp"
 #include "otfp_app/simulation.hpp"
+#include "otfp_app/sweep.hpp"
 
 namespace otfp::app {
 
@@ -64,6 +65,21 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
       ->allow_extra_args(false)
       ->take_all();
 
+  CLI::App* sweep = app.add_subcommand("sweep", "run a grid of configurations and aggregate them into runs.csv");
+  std::vector<std::string> varies;
+  int jobs = 1;
+  double timeout = 0.0;
+  sweep->add_option("config", config, "base configuration file (TOML)")->required();
+  sweep->add_option("--vary,-v", varies, "key=v1,v2,... : values of one key (repeatable; the grid is their product)")
+      ->required()
+      ->allow_extra_args(false)
+      ->take_all();
+  sweep->add_option("--out,-o", out_dir, "sweep directory: run_NNN/ per run, runs.csv, sweep.json")->required();
+  sweep->add_option("--jobs,-j", jobs, "runs at a time (default 1)");
+  sweep->add_option("--timeout", timeout, "seconds per run before it is killed (default 0: none)");
+  sweep->add_option("--set,-s", sets, "override a key in every run (repeatable)")->allow_extra_args(false)->take_all();
+  sweep->add_flag("--quiet,-q", quiet, "print nothing but errors");
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -74,6 +90,29 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
     return app.exit(e, out, err);
   } catch (const CLI::ParseError& e) {
     return error(err, std::string(e.what()) + " (try --help)", kUsage);
+  }
+
+  if (sweep->parsed()) {
+    try {
+      SweepOptions so;
+      so.config = config;
+      so.sets = sets;
+      for (const std::string& v : varies) so.axes.push_back(parse_vary(v));
+      so.out_dir = out_dir;
+      so.jobs = jobs;
+      so.timeout_seconds = timeout;
+      so.executable = std::filesystem::read_symlink("/proc/self/exe");
+      so.progress = !quiet;
+      const SweepResult r = run_sweep(so, err);
+      if (!quiet)
+        err << fmt::format("otfp: sweep of {} runs, {} not completed -> {}/runs.csv\n", r.rows.size(), r.failed,
+                           out_dir);
+      return r.failed == 0 ? 0 : kRunFailed;
+    } catch (const ConfigError& e) {
+      return error(err, e.what(), kUsage);
+    } catch (const std::exception& e) {
+      return error(err, e.what(), kUsage);
+    }
   }
 
   int code = 0;

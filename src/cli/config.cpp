@@ -60,7 +60,10 @@ const std::vector<KeySpec>& schema() {
       {"particles.layer_b", Kind::Float, {}},
       {"particles.length_L", Kind::Float, {}},
       {"particles.dirichlet_target", Kind::String, {"cell_integral", "paper_eq34"}},
-      {"particles.fill", Kind::String, {"empty", "uniform", "gaussian"}},
+      {"particles.fill", Kind::String, {"empty", "uniform", "gaussian", "cosine"}},
+      {"particles.fill_arrangement", Kind::String, {"random", "lattice"}},
+      {"particles.fill_amplitude", Kind::Float, {}},
+      {"particles.fill_mode", Kind::Int, {}},
       {"particles.fill_count", Kind::Int, {}},
       {"particles.fill_mass", Kind::Float, {}},
       {"particles.fill_center", Kind::Point, {}},
@@ -93,7 +96,7 @@ const std::vector<KeySpec>& schema() {
       {"diagnostics.center", Kind::Point, {}},
       {"diagnostics.M_inf", Kind::Float, {}},
       {"diagnostics.J_inf", Kind::Float, {}},
-      {"diagnostics.reference", Kind::String, {"none", "crank_sphere", "crank_slab", "free_space"}},
+      {"diagnostics.reference", Kind::String, {"none", "crank_sphere", "crank_slab", "free_space", "cosine_mode"}},
       {"diagnostics.reference_radius", Kind::Float, {}},
       {"diagnostics.reference_length", Kind::Float, {}},
   };
@@ -482,6 +485,9 @@ Config to_config(const toml::table& root) {
     r.get("fill_mass", c.particles.fill_mass);
     r.get("fill_center", c.particles.fill_center);
     r.get("fill_sigma", c.particles.fill_sigma);
+    r.get("fill_arrangement", c.particles.fill_arrangement);
+    r.get("fill_amplitude", c.particles.fill_amplitude);
+    r.get("fill_mode", c.particles.fill_mode);
   }
   {
     Reader r(section(root, "physics"), "physics.");
@@ -616,10 +622,27 @@ void validate(const Config& c) {
   if (pa.fill == "empty" && (pa.fill_count || pa.fill_mass))
     throw ConfigError(pa.fill_count ? "particles.fill_count" : "particles.fill_mass",
                       pa.fill_count ? std::to_string(*pa.fill_count) : shown(*pa.fill_mass),
-                      "needs particles.fill = \"uniform\" or \"gaussian\"");
+                      "needs particles.fill = \"uniform\", \"gaussian\" or \"cosine\"");
   if (pa.fill_count) at_least<std::int64_t>(*pa.fill_count, 0, "particles.fill_count");
   if (pa.fill_mass) non_negative(*pa.fill_mass, "particles.fill_mass");
   positive(pa.fill_sigma, "particles.fill_sigma");
+  if (!(pa.fill_amplitude >= 0.0 && pa.fill_amplitude < 1.0))
+    throw ConfigError("particles.fill_amplitude", shown(pa.fill_amplitude), "must be in [0, 1) (density 1 + a cos(k x) > 0)");
+  at_least<std::int64_t>(pa.fill_mode, 1, "particles.fill_mode");
+  const bool box_shaped = type == "box" || type == "periodic_box" || type == "free";
+  if (pa.fill == "cosine" && !box_shaped)
+    throw ConfigError("particles.fill", "\"cosine\"", "needs domain.type = \"periodic_box\", \"box\" or \"free\"");
+  if (pa.fill_arrangement == "lattice") {
+    if (pa.fill != "uniform" && pa.fill != "cosine")
+      throw ConfigError("particles.fill_arrangement", "\"lattice\"", "needs particles.fill = \"uniform\" or \"cosine\"");
+    if (!box_shaped)
+      throw ConfigError("particles.fill_arrangement", "\"lattice\"",
+                        "needs domain.type = \"periodic_box\", \"box\" or \"free\"");
+    if (pa.fill_count || pa.fill_mass)
+      throw ConfigError(pa.fill_count ? "particles.fill_count" : "particles.fill_mass",
+                        pa.fill_count ? std::to_string(*pa.fill_count) : shown(*pa.fill_mass),
+                        "not used by fill_arrangement = \"lattice\" (the lattice of spacing dr sets the count)");
+  }
 
   positive(c.physics.kappa, "physics.kappa");
   positive(c.physics.rho_ref, "physics.rho_ref");
@@ -677,6 +700,9 @@ void validate(const Config& c) {
   if (g.J_inf) positive(*g.J_inf, "diagnostics.J_inf");
   if (g.reference_radius) positive(*g.reference_radius, "diagnostics.reference_radius");
   if (g.reference_length) positive(*g.reference_length, "diagnostics.reference_length");
+  if (g.reference == "cosine_mode" && (type != "periodic_box" || pa.fill != "cosine"))
+    throw ConfigError("diagnostics.reference", "\"cosine_mode\"",
+                      "needs domain.type = \"periodic_box\" and particles.fill = \"cosine\"");
 }
 
 Config finish(toml::table& root, const std::vector<std::string>& overrides, const std::string& source) {
@@ -759,7 +785,10 @@ std::string to_toml(const Config& c) {
                   {"length_L", p.length_L},
                   {"dirichlet_target", p.dirichlet_target},
                   {"fill", p.fill},
-                  {"fill_sigma", p.fill_sigma}};
+                  {"fill_sigma", p.fill_sigma},
+                  {"fill_arrangement", p.fill_arrangement},
+                  {"fill_amplitude", p.fill_amplitude},
+                  {"fill_mode", p.fill_mode}};
   if (p.mass) par.insert("mass", *p.mass);
   if (p.fill_count) par.insert("fill_count", *p.fill_count);
   if (p.fill_mass) par.insert("fill_mass", *p.fill_mass);

@@ -14,6 +14,7 @@
 #include <numbers>
 
 #include "domain_setup.hpp"
+#include "otfp/analytic.hpp"
 #include "otfp/barrier.hpp"
 #include "otfp/fractional.hpp"
 #include "otfp/neighbor_list.hpp"
@@ -58,6 +59,83 @@ std::string hms(double seconds) {
                    : fmt::format("{}:{:02}", s / 60, s % 60);
 }
 
+// Running error statistics of one measured quantity against its reference
+// (error = (measured - reference) / scale), trapezoid rule in time.
+struct ErrorStats {
+  std::string measured, scale_rule;
+  double scale = 1.0;
+  double max_abs = 0.0, l1_time = 0.0, final_error = 0.0, l1_measured = 0.0, l1_reference = 0.0;
+  double t_prev = 0.0, e_prev = 0.0, m_prev = 0.0, r_prev = 0.0, t_first = 0.0;
+  bool started = false;
+
+  double add(double t, double m, double r) {
+    const double e = (m - r) / scale;
+    if (started) {
+      const double h = t - t_prev;
+      // |e| is piecewise linear: integrate exactly across a sign change.
+      if (e * e_prev >= 0.0)
+        l1_time += 0.5 * (std::abs(e) + std::abs(e_prev)) * h;
+      else
+        l1_time += 0.5 * (e * e + e_prev * e_prev) / (std::abs(e) + std::abs(e_prev)) * h;
+      l1_measured += 0.5 * (m + m_prev) * h;
+      l1_reference += 0.5 * (r + r_prev) * h;
+    } else {
+      t_first = t;
+    }
+    max_abs = std::max(max_abs, std::abs(e));
+    final_error = e;
+    t_prev = t;
+    e_prev = e;
+    m_prev = m;
+    r_prev = r;
+    started = true;
+    return e;
+  }
+
+  nlohmann::json json() const {
+    const double span = t_prev - t_first;
+    return {{"measured", measured},
+            {"scale", scale},
+            {"scale_rule", scale_rule},
+            {"max_abs_error", max_abs},
+            {"l1_time_error", l1_time},
+            {"mean_abs_error", span > 0.0 ? l1_time / span : 0.0},
+            {"final_error", final_error},
+            {"l1_norm", l1_measured},
+            {"l1_norm_reference", l1_reference},
+            {"l1_norm_relative_error", l1_reference != 0.0 ? (l1_measured - l1_reference) / l1_reference : 0.0}};
+  }
+};
+
+// Solves xi + (a/k) sin(k xi) = u for xi (the inverse of the cumulative
+// density of 1 + a cos(k xi), a < 1: strictly increasing, Newton converges).
+double invert_cosine_cdf(double u, double a, double k) {
+  double xi = u;
+  for (int it = 0; it < 100; ++it) {
+    const double f = xi + a / k * std::sin(k * xi) - u;
+    const double df = 1.0 + a * std::cos(k * xi);
+    const double step = f / df;
+    xi -= step;
+    if (std::abs(step) <= 1e-15 * (1.0 + std::abs(xi))) break;
+  }
+  return xi;
+}
+
+// Discrete decay factor per step of the mode exp(-lambda t) under the time
+// scheme alone (exact in space), as a rate: what the stepper would give
+// with an exact spatial operator.
+double time_discrete_rate(const std::string& scheme, double lambda, double dt) {
+  const double z = lambda * dt;
+  double g = 0.0;
+  if (scheme == "implicit")
+    g = 1.0 / (1.0 + z);
+  else if (scheme == "rk4")
+    g = 1.0 - z + z * z / 2.0 - z * z * z / 6.0 + z * z * z * z / 24.0;
+  else
+    g = 1.0 - z;
+  return g > 0.0 ? -std::log(g) / dt : std::numeric_limits<double>::infinity();
+}
+
 }  // namespace
 
 // Everything that changes while running.
@@ -75,31 +153,6 @@ struct Simulation::State {
 };
 
 Simulation::~Simulation() = default;
-
-double Simulation::crank_sphere(double kappa, double radius, double t) {
-  if (!(t > 0.0)) return 0.0;
-  const double a = kPi * kPi * kappa * t / (radius * radius);
-  double s = 0.0;
-  for (long n = 1; n <= 10'000'000; ++n) {
-    const double term = std::exp(-static_cast<double>(n) * n * a) / (static_cast<double>(n) * n);
-    s += term;
-    if (term < 1e-18) break;
-  }
-  return 1.0 - 6.0 / (kPi * kPi) * s;
-}
-
-double Simulation::crank_slab(double kappa, double length, double t) {
-  if (!(t > 0.0)) return 0.0;
-  const double a = kPi * kPi * kappa * t / (4.0 * length * length);
-  double s = 0.0;
-  for (long k = 0; k <= 10'000'000; ++k) {
-    const double o = 2.0 * k + 1.0;
-    const double term = 8.0 / (o * o * kPi * kPi) * std::exp(-o * o * a);
-    s += term;
-    if (term < 1e-18) break;
-  }
-  return 1.0 - s;
-}
 
 Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::make_unique<State>()) {
   const Config& c = config_;
@@ -214,7 +267,15 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
                       "must be > 0: set diagnostics.M_inf or particles.mass");
   d.particle_mass = pa.mass ? *pa.mass : d.M_inf / static_cast<double>(pa.n_inf);
 
-  if (pa.fill != "empty") {
+  if (pa.fill_arrangement == "lattice") {
+    // Cell-centred lattice of spacing ~dr: round(edge / dr) points per axis.
+    d.fill_count = 1;
+    for (int k = 0; k < dim; ++k) {
+      d.lattice_counts[static_cast<std::size_t>(k)] =
+          std::max<std::int64_t>(1, std::llround((c.domain.hi[k] - c.domain.lo[k]) / d.dr));
+      d.fill_count *= d.lattice_counts[static_cast<std::size_t>(k)];
+    }
+  } else if (pa.fill != "empty") {
     if (pa.fill_count) {
       d.fill_count = *pa.fill_count;
     } else if (pa.fill_mass) {
@@ -222,10 +283,11 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
     } else {
       d.fill_count = pa.n_inf;
     }
-    if (d.fill_count > 100'000'000)
-      throw ConfigError(pa.fill_count ? "particles.fill_count" : "particles.fill_mass",
-                        fmt::format("{} particles", d.fill_count), "must give at most 1e8 particles");
   }
+  if (d.fill_count > 100'000'000)
+    throw ConfigError(pa.fill_count ? "particles.fill_count" : pa.fill_mass ? "particles.fill_mass" : "particles.n_inf",
+                      fmt::format("{} particles", d.fill_count), "must give at most 1e8 particles");
+  if (pa.fill == "cosine") d.mode_wavenumber = 2.0 * kPi * static_cast<double>(pa.fill_mode) / (c.domain.hi[0] - c.domain.lo[0]);
 
   // Diagnostics centre, J_inf, reference curves.
   d.center = c.diagnostics.center ? *c.diagnostics.center : st.built.centroid;
@@ -243,6 +305,10 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
     if (!d.reference_radius)
       throw ConfigError("diagnostics.reference_radius", "(missing)",
                         "required for reference = \"crank_sphere\" on a domain that is not a ball");
+    // Polar-inertia reference: a 3D ball about its own centre.
+    if (st.built.ball_radius && dim == 3 && (d.center - c.domain.center).norm() <= 1e-12 * *d.reference_radius &&
+        std::abs(*d.reference_radius - *st.built.ball_radius) <= 1e-12 * *d.reference_radius)
+      d.reference_J_inf = 0.6 * d.M_inf * *d.reference_radius * *d.reference_radius;
   } else if (ref == "crank_slab") {
     d.reference_length = c.diagnostics.reference_length;
     if (!d.reference_length && c.domain.type == "box") {
@@ -252,7 +318,15 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
           face = p.id;
           ++count;
         }
-      if (count == 1 && face < 2 * dim) d.reference_length = c.domain.hi[face / 2] - c.domain.lo[face / 2];
+      if (count == 1 && face < 2 * dim) {
+        d.reference_length = c.domain.hi[face / 2] - c.domain.lo[face / 2];
+        if (!c.diagnostics.reference_length && st.built.mean_square_distance) {
+          // Polar-inertia reference: the slab profile across the box.
+          d.slab_axis = face / 2;
+          d.slab_held_at_hi = face % 2 == 1;
+          d.reference_J_inf = d.M_inf * st.built.mean_square_distance(d.center);
+        }
+      }
     }
     if (!d.reference_length)
       throw ConfigError("diagnostics.reference_length", "(missing)",
@@ -401,7 +475,10 @@ nlohmann::json Simulation::describe() const {
                       {"fill_count", opt(p.fill_count)},
                       {"fill_mass", opt(p.fill_mass)},
                       {"fill_center", p.fill_center ? to_json(*p.fill_center) : nullptr},
-                      {"fill_sigma", p.fill_sigma}};
+                      {"fill_sigma", p.fill_sigma},
+                      {"fill_arrangement", p.fill_arrangement},
+                      {"fill_amplitude", p.fill_amplitude},
+                      {"fill_mode", p.fill_mode}};
   cfg["physics"] = {{"kappa", c.physics.kappa},
                     {"rho_ref", c.physics.rho_ref},
                     {"velocity", to_json(c.physics.velocity)},
@@ -466,6 +543,9 @@ nlohmann::json Simulation::describe() const {
                         {"neumann_net_inflow", d.neumann_net_inflow},
                         {"reference_radius", opt(d.reference_radius)},
                         {"reference_length", opt(d.reference_length)},
+                        {"reference_J_inf", opt(d.reference_J_inf)},
+                        {"mode_wavenumber", d.mode_wavenumber},
+                        {"lattice_counts", d.lattice_counts},
                         {"patches", pj}};
   return {{"config", cfg}, {"derived", der}};
 }
@@ -491,14 +571,36 @@ RunResult Simulation::run(const RunOptions& options) {
   // Column layout of series.csv (fixed by the configuration, not by the run).
   const bool has_j_ratio = d.J_inf.has_value();
   const std::string& ref = c.diagnostics.reference;
-  const std::string ref_column = ref == "free_space" ? "reference_polar_inertia" : "reference_mass_ratio";
+  // Reference columns and their error statistics (docs/outputs.md).
+  std::vector<std::string> ref_columns;
+  std::vector<ErrorStats> ref_stats;
+  auto add_stats = [&](const std::string& measured, double scale, const std::string& rule) {
+    ErrorStats e;
+    e.measured = measured;
+    e.scale = scale;
+    e.scale_rule = rule;
+    ref_stats.push_back(e);
+  };
+  const bool crank = ref == "crank_sphere" || ref == "crank_slab";
+  if (crank) {
+    ref_columns = {"reference_mass_ratio", "error_mass_ratio"};
+    add_stats("mass_ratio", 1.0, "M_inf (the error is in units of M/M_inf)");
+    if (d.reference_J_inf) {
+      ref_columns.insert(ref_columns.end(), {"reference_polar_inertia", "error_polar_inertia"});
+      add_stats("polar_inertia", *d.reference_J_inf, "analytic steady polar inertia J_ref(inf)");
+    }
+  } else if (ref == "free_space") {
+    ref_columns = {"second_moment", "reference_second_moment", "error_second_moment"};
+  } else if (ref == "cosine_mode") {
+    ref_columns = {"mode_amplitude", "reference_mode_amplitude", "error_mode_amplitude"};
+  }
   std::string header =
       "step,t,dt,n_particles,mass_total,mass_inside,polar_inertia,inserted,removed,energy,iterations,evaluations,"
       "mass_with_layer,polar_inertia_with_layer,polar_inertia_total,n_inside,n_buffer,n_outside,inserted_total,"
       "removed_total,transport,entropy,barrier,gradient_norm,list_builds,halvings,mean_age,max_age,l1_mass,"
       "l1_polar_inertia,mass_ratio";
   if (has_j_ratio) header += ",polar_inertia_ratio";
-  if (ref != "none") header += "," + ref_column;
+  for (const std::string& col : ref_columns) header += "," + col;
   header += "\n";
 
   // Ledger totals.
@@ -510,9 +612,8 @@ RunResult Simulation::run(const RunOptions& options) {
   double M0 = 0.0;
   // Trapezoid L1 sums (the series carries the paper's rectangle sums).
   double trap_mass_inside = 0.0, trap_mass_layer = 0.0, trap_j_inside = 0.0, trap_j_layer = 0.0;
-  double ref_abs_dev = 0.0;
-  std::int64_t ref_rows = 0;
-  double J0_total = 0.0;
+  double S0 = 0.0, A0 = 0.0;  // second moment and mode amplitude at t = 0
+  std::vector<std::pair<double, double>> mode_log;  // (t, log A) while A > 0.05 A0
   std::int64_t total_iterations = 0, total_evaluations = 0, total_rejected = 0, total_halvings = 0;
   StepRecord prev;
   std::vector<std::int32_t> region;
@@ -577,7 +678,6 @@ RunResult Simulation::run(const RunOptions& options) {
     if (step == 0) {
       r.l1_mass = r.mass_total * d.dt;
       r.l1_polar_inertia = r.polar_inertia_total * d.dt;
-      J0_total = r.polar_inertia_total;
     } else {
       trap_mass_inside += 0.5 * (prev.mass_inside + r.mass_inside) * d.dt;
       trap_mass_layer += 0.5 * (prev.mass_with_layer + r.mass_with_layer) * d.dt;
@@ -586,13 +686,77 @@ RunResult Simulation::run(const RunOptions& options) {
     }
     r.mass_ratio = r.mass_inside / d.M_inf;
     if (d.J_inf) r.polar_inertia_ratio = r.polar_inertia / *d.J_inf;
-    if (ref == "crank_sphere") r.reference = crank_sphere(c.physics.kappa, *d.reference_radius, t);
-    if (ref == "crank_slab") r.reference = crank_slab(c.physics.kappa, *d.reference_length, t);
-    if (ref == "free_space") r.reference = J0_total + 2.0 * dim * c.physics.kappa * M0 * t;
-    if (r.reference && step > 0) {
-      ref_abs_dev += ref == "free_space" ? std::abs(r.polar_inertia_total - *r.reference) : std::abs(r.mass_ratio - *r.reference);
-      ++ref_rows;
+    // Analytic references: measured, reference, error (scaled) per row.
+    auto& rv = r.reference_values;
+    if (crank) {
+      const double L = ref == "crank_sphere" ? *d.reference_radius : *d.reference_length;
+      const double tau = c.physics.kappa * t / (L * L);
+      const double rm = ref == "crank_sphere" ? analytic::crank_sphere_uptake(tau) : analytic::crank_slab_uptake(tau);
+      rv = {rm, ref_stats[0].add(t, r.mass_ratio, rm)};
+      if (d.reference_J_inf) {
+        double rj = 0.0;
+        if (ref == "crank_sphere") {
+          rj = *d.reference_J_inf * analytic::crank_sphere_polar_inertia(tau);
+        } else if (t > 0.0) {
+          // Slab: g A * integral over the depth xi of rho/g times the squared
+          // distance to the centre (Simpson, 512 intervals); the transverse
+          // axes contribute their uniform second moment.
+          const int a = d.slab_axis;
+          double transverse = 0.0;
+          for (int k = 0; k < dim; ++k)
+            if (k != a) {
+              const double w = c.domain.hi[k] - c.domain.lo[k], mid = 0.5 * (c.domain.hi[k] + c.domain.lo[k]);
+              transverse += w * w / 12.0 + (mid - d.center[k]) * (mid - d.center[k]);
+            }
+          const int intervals = 512;
+          double integral = 0.0;
+          for (int i = 0; i <= intervals; ++i) {
+            const double depth = static_cast<double>(i) / intervals;
+            const double x = d.slab_held_at_hi ? c.domain.hi[a] - depth * L : c.domain.lo[a] + depth * L;
+            const double w = (i == 0 || i == intervals) ? 1.0 : (i % 2 ? 4.0 : 2.0);
+            integral += w * analytic::crank_slab_density(tau, depth) *
+                        ((x - d.center[a]) * (x - d.center[a]) + transverse);
+          }
+          rj = d.M_inf * integral / (3.0 * intervals);  // M_inf = g |Omega|, depth in units of L
+        }
+        rv.push_back(rj);
+        rv.push_back(ref_stats[1].add(t, r.polar_inertia, rj));
+      }
+    } else if (ref == "free_space") {
+      // Second moment of the blob density about the centre: each Gaussian adds
+      // its own variance d s^2 / 2, which matters when the widths change.
+      double S = 0.0;
+      for (std::size_t p = 0; p < n; ++p) {
+        const double sp = particles.widths()[p];
+        S += particles.masses()[p] * ((particles.positions()[p] - d.center).squaredNorm() + 0.5 * dim * sp * sp);
+      }
+      if (step == 0) {
+        S0 = S;
+        add_stats("second_moment", 2.0 * dim * c.physics.kappa * r.mass_total * c.run.t_end,
+                  "2 d kappa M t_end (the reference growth over the run)");
+      }
+      const double rs = S0 + 2.0 * dim * c.physics.kappa * M0 * t;
+      rv = {S, rs, ref_stats[0].add(t, S, rs)};
+    } else if (ref == "cosine_mode") {
+      // Fourier coefficient of the blob density: a Gaussian of width s damps
+      // the mode by exp(-k^2 s^2 / 4).
+      const double k = d.mode_wavenumber;
+      double A = 0.0;
+      for (std::size_t p = 0; p < n; ++p) {
+        const double sp = particles.widths()[p];
+        A += particles.masses()[p] * std::exp(-0.25 * k * k * sp * sp) *
+             std::cos(k * (particles.positions()[p][0] - c.domain.lo[0]));
+      }
+      A *= 2.0 / r.mass_total;
+      if (step == 0) {
+        A0 = A;
+        add_stats("mode_amplitude", std::abs(A0), "the initial amplitude a(0)");
+      }
+      const double ra = A0 * analytic::cosine_mode_decay(c.physics.kappa, k, t);
+      rv = {A, ra, ref_stats[0].add(t, A, ra)};
+      if (A > 0.05 * std::abs(A0) && A0 > 0.0) mode_log.emplace_back(t, std::log(A));
     }
+    if (!rv.empty()) r.reference = ref == "crank_sphere" || ref == "crank_slab" ? rv[0] : rv[1];
     r.wall_seconds = wall();
     return r;
   };
@@ -638,7 +802,7 @@ RunResult Simulation::run(const RunOptions& options) {
     num(r.l1_polar_inertia, "l1_polar_inertia");
     num(r.mass_ratio, "mass_ratio");
     if (has_j_ratio) num(*r.polar_inertia_ratio, "polar_inertia_ratio");
-    if (r.reference) num(*r.reference, ref_column.c_str());
+    for (std::size_t i = 0; i < r.reference_values.size(); ++i) num(r.reference_values[i], ref_columns[i].c_str());
     line.back() = '\n';
     return line;
   };
@@ -716,12 +880,43 @@ RunResult Simulation::run(const RunOptions& options) {
                {"mass_with_layer_trapezoid", trap_mass_layer},
                {"polar_inertia_inside_trapezoid", trap_j_inside},
                {"polar_inertia_with_layer_trapezoid", trap_j_layer}};
-    if (ref != "none")
+    if (ref != "none") {
+      nlohmann::json q = nlohmann::json::array();
+      for (const ErrorStats& e : ref_stats) q.push_back(e.json());
       j["reference"] = {{"curve", ref},
-                        {"column", ref_column},
-                        {"final", opt(last.reference)},
-                        {"mean_abs_deviation", ref_rows ? ref_abs_dev / static_cast<double>(ref_rows) : 0.0},
-                        {"deviation_of", ref == "free_space" ? "polar_inertia_total" : "mass_ratio"}};
+                        {"error_rule", "error = (measured - reference) / scale per row; max_abs_error over rows; "
+                                       "l1_time_error = integral of |error| dt (trapezoid); mean_abs_error = "
+                                       "l1_time_error / t; l1_norm = integral of the quantity dt (trapezoid)"},
+                        {"quantities", q}};
+      if (ref == "free_space" && last.t > 0.0 && !last.reference_values.empty())
+        j["reference"]["growth_ratio"] = (last.reference_values[0] - S0) / (2.0 * dim * c.physics.kappa * M0 * last.t);
+      if (ref == "cosine_mode") {
+        // Least-squares slope of log a(t) over the rows with a > 0.05 a(0).
+        const double lambda = c.physics.kappa * d.mode_wavenumber * d.mode_wavenumber;
+        double rate = std::numeric_limits<double>::quiet_NaN();
+        if (mode_log.size() >= 3) {
+          double st_ = 0.0, sy = 0.0, stt = 0.0, sty = 0.0;
+          for (const auto& [tt, y] : mode_log) {
+            st_ += tt;
+            sy += y;
+            stt += tt * tt;
+            sty += tt * y;
+          }
+          const double m = static_cast<double>(mode_log.size());
+          rate = -(m * sty - st_ * sy) / (m * stt - st_ * st_);
+        }
+        const std::string scheme = c.solver.stepper == "implicit" ? "implicit" : c.solver.explicit_scheme;
+        const double discrete = time_discrete_rate(scheme, lambda, d.dt);
+        j["reference"]["wavenumber"] = d.mode_wavenumber;
+        j["reference"]["kappa_k2"] = lambda;
+        j["reference"]["rows_fitted"] = mode_log.size();
+        j["reference"]["fitted_rate"] = std::isfinite(rate) ? nlohmann::json(rate) : nlohmann::json(nullptr);
+        j["reference"]["rate_ratio"] = std::isfinite(rate) ? nlohmann::json(rate / lambda) : nlohmann::json(nullptr);
+        j["reference"]["time_discrete_rate"] = std::isfinite(discrete) ? nlohmann::json(discrete) : nlohmann::json(nullptr);
+        j["reference"]["rate_ratio_time_discrete"] =
+            std::isfinite(rate) && std::isfinite(discrete) ? nlohmann::json(rate / discrete) : nlohmann::json(nullptr);
+      }
+    }
     j["ledger"] = ledger_json();
     j["solver_totals"] = {{"iterations", total_iterations},
                           {"evaluations", total_evaluations},
@@ -753,7 +948,24 @@ RunResult Simulation::run(const RunOptions& options) {
     const double m_p = d.particle_mass;
     for (std::int64_t i = 0; i < d.fill_count; ++i) {
       Vec3 x;
-      if (c.particles.fill == "gaussian") {
+      if (c.particles.fill_arrangement == "lattice" || c.particles.fill == "cosine") {
+        // Lattice: cell centres; random: uniform. The cosine fill then maps x
+        // through the inverse cumulative density of 1 + a cos(k x).
+        x = Vec3::Zero();
+        std::int64_t rest = i;
+        for (int k = 0; k < dim; ++k) {
+          const double lo = c.domain.lo[k], len = c.domain.hi[k] - c.domain.lo[k];
+          if (c.particles.fill_arrangement == "lattice") {
+            const std::int64_t nk = d.lattice_counts[static_cast<std::size_t>(k)];
+            x[k] = lo + (static_cast<double>(rest % nk) + 0.5) * len / static_cast<double>(nk);
+            rest /= nk;
+          } else {
+            x[k] = lo + len * rng.uniform();
+          }
+        }
+        if (c.particles.fill == "cosine")
+          x[0] = c.domain.lo[0] + invert_cosine_cdf(x[0] - c.domain.lo[0], c.particles.fill_amplitude, d.mode_wavenumber);
+      } else if (c.particles.fill == "gaussian") {
         const Vec3 ctr = c.particles.fill_center.value_or(d.center);
         x = Vec3::Zero();
         for (int k = 0; k < dim; ++k) x[k] = ctr[k] + c.particles.fill_sigma * rng.normal();

@@ -65,11 +65,14 @@ struct ParticlesSection {
   double layer_b = 0.0;   // 0: sqrt(length_L dr)
   double length_L = 0.0;  // 0: from the domain
   std::string dirichlet_target = "cell_integral";  // cell_integral | paper_eq34
-  std::string fill = "empty";  // empty | uniform | gaussian
+  std::string fill = "empty";  // empty | uniform | gaussian | cosine
   std::optional<std::int64_t> fill_count;
   std::optional<double> fill_mass;
   std::optional<Vec3> fill_center;
   double fill_sigma = 0.1;
+  std::string fill_arrangement = "random";  // random | lattice (box-shaped domains)
+  double fill_amplitude = 0.5;  // a of the cosine fill 1 + a cos(k x)
+  std::int64_t fill_mode = 1;   // k = 2 pi fill_mode / (hi_x - lo_x)
 };
 
 struct PhysicsSection {
@@ -110,7 +113,7 @@ struct DiagnosticsSection {
   std::optional<Vec3> center;
   std::optional<double> M_inf;
   std::optional<double> J_inf;
-  std::string reference = "none";  // none | crank_sphere | crank_slab | free_space
+  std::string reference = "none";  // none | crank_sphere | crank_slab | free_space | cosine_mode
   std::optional<double> reference_radius;
   std::optional<double> reference_length;
 };

@@ -5,6 +5,7 @@
 // Simulation's constructor does every check that needs the geometry and
 // builds all library objects; it throws ConfigError (exit code 2) and never
 // touches the file system. run() creates the output directory and steps.
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -59,6 +60,11 @@ struct Derived {
   std::int64_t fill_count = 0;
   double neumann_net_inflow = 0.0;  // integral over [0, t_end] of the inflow of all Neumann patches
   std::optional<double> reference_radius, reference_length;
+  std::optional<double> reference_J_inf;  // analytic steady polar inertia (J reference of crank_*)
+  int slab_axis = -1;                     // crank_slab on a box: axis normal to the held face
+  bool slab_held_at_hi = false;           // the held face is x = hi (else x = lo)
+  std::array<std::int64_t, 3> lattice_counts{1, 1, 1};  // fill_arrangement = lattice: points per axis
+  double mode_wavenumber = 0.0;           // k of the cosine fill
 };
 
 // Diagnostics of one step (row of series.csv).
@@ -75,7 +81,8 @@ struct StepRecord {
   double l1_mass = 0.0, l1_polar_inertia = 0.0;  // running (46a)-(46b), rectangle rule, all particles
   double mass_ratio = 0.0;                        // mass_inside / M_inf
   std::optional<double> polar_inertia_ratio;      // polar_inertia / J_inf
-  std::optional<double> reference;                // reference_mass_ratio or reference_polar_inertia
+  std::optional<double> reference;                // the primary reference value (first reference column)
+  std::vector<double> reference_values;           // the reference columns of series.csv, in order
   // Timing: kept out of series.csv so that it is reproducible byte for byte.
   double wall_seconds = 0.0, step_seconds = 0.0, solver_seconds = 0.0;
 };
@@ -110,10 +117,6 @@ class Simulation {
   const std::vector<PatchInfo>& patches() const { return patches_; }
   // The resolved configuration and derived numbers (summary.json "config"/"derived").
   nlohmann::json describe() const;
-
-  // Reference curves (Crank, eq. 6.20 and 4.18).
-  static double crank_sphere(double kappa, double radius, double t);
-  static double crank_slab(double kappa, double length, double t);
 
  private:
   struct State;

@@ -1,0 +1,64 @@
+#pragma once
+// `otfp sweep`: runs the grid of --vary values of one configuration, each as
+// a separate `otfp run` process (a crash or a failed step stays one row), and
+// aggregates the runs' summary.json files into runs.csv (docs/outputs.md).
+#include <filesystem>
+#include <iosfwd>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+namespace otfp::app {
+
+// One varied key and its values, e.g. "run.dt_factor=0.25,1,4".
+struct SweepAxis {
+  std::string key;
+  std::vector<std::string> values;  // TOML inline values or bare words, as for --set
+};
+
+// Parses "key=v1,v2,...": commas inside [...] or quotes do not split
+// (physics.velocity=[1,0,0],[0,1,0]). Throws ConfigError("--vary", ...).
+SweepAxis parse_vary(const std::string& text);
+
+// Every combination, the first axis varying slowest; each entry holds one
+// value per axis.
+std::vector<std::vector<std::string>> expand_grid(const std::vector<SweepAxis>& axes);
+
+struct SweepOptions {
+  std::filesystem::path config;       // base configuration
+  std::vector<std::string> sets;      // --set overrides applied to every run, before the varied keys
+  std::vector<SweepAxis> axes;        // the grid
+  std::filesystem::path out_dir;      // DIR: DIR/run_NNN per run, DIR/runs.csv, DIR/sweep.json
+  int jobs = 1;                       // runs at a time
+  double timeout_seconds = 0.0;       // per run; 0: none
+  std::filesystem::path executable;   // the otfp binary that runs each point
+  bool progress = true;               // one line per finished run on the error stream
+};
+
+struct SweepRow {
+  int index = 0;
+  std::string dir;                   // run directory name under out_dir
+  std::vector<std::string> values;   // one per axis
+  std::string status;                // completed | failed | invalid | timeout | crashed
+  int exit_code = 0;
+  std::string error;
+  double wall_seconds = 0.0;
+  nlohmann::json summary;            // the run's summary.json (null if none)
+};
+
+struct SweepResult {
+  std::vector<SweepRow> rows;
+  int failed = 0;                    // rows whose status is not "completed"
+};
+
+// Checks the options (throws ConfigError naming the offending option or key),
+// then runs the grid and writes out_dir/runs.csv (rewritten after every
+// finished run, rows in grid order) and out_dir/sweep.json.
+SweepResult run_sweep(const SweepOptions& options, std::ostream& err);
+
+// The runs.csv header and one row (exposed for tests).
+std::string runs_csv_header(const std::vector<SweepAxis>& axes);
+std::string runs_csv_row(const SweepRow& row);
+
+}  // namespace otfp::app
