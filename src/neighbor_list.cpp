@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
+#include <string>
 
 #include "otfp/geometry.hpp"
 
@@ -39,7 +41,8 @@ void NeighborOptions::validate() const {
 // ---------------------------------------------------------------- CellGrid
 
 int CellGrid::cell_coord(double v, int axis) const {
-  const double t = (v - origin_[axis]) / cell_width_[axis];
+  // Clamped in double first: the cast of a far-away coordinate would overflow.
+  const double t = std::clamp((v - origin_[axis]) / cell_width_[axis], -1e9, 1e9);
   int c = static_cast<int>(std::floor(t));
   if (per_.period[axis] > 0.0) {
     c %= n_[axis];
@@ -58,37 +61,45 @@ void CellGrid::build(const std::vector<Vec3>& x, double cell_size, const Periodi
   if (n > 0) {
     lo = x[0];
     hi = x[0];
-    for (const Vec3& p : x) {
-      lo = lo.cwiseMin(p);
-      hi = hi.cwiseMax(p);
+    for (std::size_t i = 0; i < n; ++i) {
+      // A diverged explicit step (dt far above its limit) ends here first.
+      if (!x[i].allFinite())
+        throw std::runtime_error("non-finite position of particle " + std::to_string(i) +
+                                 ": the step diverged (an explicit dt above its stability limit?)");
+      lo = lo.cwiseMin(x[i]);
+      hi = hi.cwiseMax(x[i]);
     }
   }
-  // Cap the cell count near n so that sparse, spread-out clouds stay O(n) in memory.
+  // Cap the cell count near n so that sparse, spread-out clouds stay O(n) in
+  // memory: counts are computed in double (a cloud blown apart by an unstable
+  // step can span far more cells than an int holds), cells grown until they fit.
   const double max_cells = std::max<double>(8.0, 2.0 * static_cast<double>(n));
   double size = cell_size;
-  for (int attempt = 0; attempt < 64; ++attempt) {
+  double counts[3] = {1.0, 1.0, 1.0};
+  for (int attempt = 0; attempt < 200; ++attempt) {
     double total = 1.0;
-    for (int k = 0; k < 3; ++k) {
-      if (k >= dim) {
-        n_[k] = 1;
-        origin_[k] = 0.0;
-        cell_width_[k] = 1.0;
-        continue;
-      }
-      if (per_.period[k] > 0.0) {
-        origin_[k] = per_.lo[k];
-        n_[k] = std::max(1, static_cast<int>(std::floor(per_.period[k] / size)));
-        cell_width_[k] = per_.period[k] / n_[k];
-      } else {
-        origin_[k] = lo[k];
-        const double ext = hi[k] - lo[k];
-        n_[k] = std::max(1, static_cast<int>(std::floor(ext / size)) + 1);
-        cell_width_[k] = size;
-      }
-      total *= n_[k];
+    for (int k = 0; k < dim; ++k) {
+      counts[k] = per_.period[k] > 0.0 ? std::max(1.0, std::floor(per_.period[k] / size))
+                                       : std::max(1.0, std::floor((hi[k] - lo[k]) / size) + 1.0);
+      total *= counts[k];
     }
     if (total <= max_cells) break;
-    size *= 1.26;
+    size *= std::max(1.26, 0.5 * std::pow(total / max_cells, 1.0 / dim));
+  }
+  for (int k = 0; k < 3; ++k) {
+    if (k >= dim) {
+      n_[k] = 1;
+      origin_[k] = 0.0;
+      cell_width_[k] = 1.0;
+    } else if (per_.period[k] > 0.0) {
+      origin_[k] = per_.lo[k];
+      n_[k] = static_cast<int>(counts[k]);
+      cell_width_[k] = per_.period[k] / n_[k];
+    } else {
+      origin_[k] = lo[k];
+      n_[k] = static_cast<int>(counts[k]);
+      cell_width_[k] = size;
+    }
   }
   const std::size_t ncell = static_cast<std::size_t>(n_[0]) * n_[1] * n_[2];
   cell_start_.assign(ncell + 1, 0);

@@ -19,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "app_test_support.hpp"
 #include "otfp_app/config.hpp"
 #include "otfp_app/simulation.hpp"
 
@@ -31,18 +32,8 @@ namespace {
 const fs::path kSource = OTFP_SOURCE_DIR;
 const fs::path kExamples = kSource / "examples";
 
-fs::path fresh_dir(const std::string& tag) {
-  const fs::path p = fs::temp_directory_path() / ("otfp_test_cli_" + tag + "_" + std::to_string(::getpid()));
-  fs::remove_all(p);
-  return p;
-}
-
-std::string read_text(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using otfp::test::fresh_dir;
+using otfp::test::read_text;
 
 RunResult run_config(Config config, const fs::path& out = {}) {
   Simulation sim(std::move(config));

@@ -1069,6 +1069,17 @@ RunResult Simulation::run(const RunOptions& options) {
                                    k, t1, mass_now, mass_expect));
       emit(diagnostics(k, t1, &sum, ins, rem));
     }
+    if (write) {
+      // Final particles as CSV (widths for histograms, positions for profiles).
+      std::string text = "id,x,y,z,width_s,beta,mass,birth_time,region\n";
+      for (std::size_t p = 0; p < particles.size(); ++p) {
+        const Vec3& x = particles.positions()[p];
+        const double sp = particles.widths()[p];
+        text += fmt::format("{},{},{},{},{},{},{},{},{}\n", particles.ids()[p], x[0], x[1], x[2], sp, 1.0 / (sp * sp),
+                            particles.masses()[p], particles.birth_times()[p], region[p]);
+      }
+      write_file_atomic(out / "particles_final.csv", text);
+    }
     result.status = "completed";
     result.exit_code = 0;
   } catch (const std::exception& e) {

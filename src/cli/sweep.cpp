@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 
 #include <cerrno>
+#include <algorithm>
 #include <chrono>
 #include <cstring>
 #include <cmath>
@@ -128,17 +129,15 @@ struct Running {
 
 }  // namespace
 
-SweepAxis parse_vary(const std::string& text) {
-  const auto eq = text.find('=');
-  if (eq == std::string::npos || eq == 0)
-    throw ConfigError("--vary", "\"" + text + "\"", "must be key=v1,v2,... (e.g. run.dt_factor=0.5,1,2)");
-  SweepAxis axis;
-  axis.key = trim(text.substr(0, eq));
-  const std::string rest = text.substr(eq + 1);
+namespace {
+
+// Splits at `sep` outside [...], {...} and quotes; throws on an empty part.
+std::vector<std::string> split_top(const std::string& text, char sep, const std::string& whole) {
+  std::vector<std::string> parts;
   std::string cur;
   int depth = 0;
   char quote = 0;
-  for (char ch : rest) {
+  for (char ch : text) {
     if (quote) {
       if (ch == quote) quote = 0;
     } else if (ch == '"' || ch == '\'') {
@@ -147,17 +146,36 @@ SweepAxis parse_vary(const std::string& text) {
       ++depth;
     } else if (ch == ']' || ch == '}') {
       --depth;
-    } else if (ch == ',' && depth == 0) {
-      axis.values.push_back(trim(cur));
+    } else if (ch == sep && depth == 0) {
+      parts.push_back(trim(cur));
       cur.clear();
       continue;
     }
     cur += ch;
   }
-  axis.values.push_back(trim(cur));
-  for (const std::string& v : axis.values)
-    if (v.empty()) throw ConfigError("--vary", "\"" + text + "\"", "has an empty value");
-  if (quote || depth != 0) throw ConfigError("--vary", "\"" + text + "\"", "has an unclosed bracket or quote");
+  parts.push_back(trim(cur));
+  if (quote || depth != 0) throw ConfigError("--vary", "\"" + whole + "\"", "has an unclosed bracket or quote");
+  for (const std::string& p : parts)
+    if (p.empty()) throw ConfigError("--vary", "\"" + whole + "\"", "has an empty key or value");
+  return parts;
+}
+
+}  // namespace
+
+SweepAxis parse_vary(const std::string& text) {
+  const auto eq = text.find('=');
+  if (eq == std::string::npos || eq == 0)
+    throw ConfigError("--vary", "\"" + text + "\"", "must be key=v1,v2,... (e.g. run.dt_factor=0.5,1,2)");
+  SweepAxis axis;
+  axis.keys = split_top(text.substr(0, eq), ':', text);
+  for (const std::string& point : split_top(text.substr(eq + 1), ',', text)) {
+    std::vector<std::string> v = axis.keys.size() == 1 ? std::vector<std::string>{point} : split_top(point, ':', text);
+    if (v.size() != axis.keys.size())
+      throw ConfigError("--vary", "\"" + text + "\"",
+                        fmt::format("value \"{}\" has {} parts for {} keys (separate them with ':')", point, v.size(),
+                                    axis.keys.size()));
+    axis.values.push_back(std::move(v));
+  }
   return axis;
 }
 
@@ -166,9 +184,9 @@ std::vector<std::vector<std::string>> expand_grid(const std::vector<SweepAxis>& 
   for (const SweepAxis& a : axes) {
     std::vector<std::vector<std::string>> next;
     for (const auto& g : grid)
-      for (const std::string& v : a.values) {
+      for (const auto& v : a.values) {
         next.push_back(g);
-        next.back().push_back(v);
+        next.back().insert(next.back().end(), v.begin(), v.end());
       }
     grid = std::move(next);
   }
@@ -177,10 +195,11 @@ std::vector<std::vector<std::string>> expand_grid(const std::vector<SweepAxis>& 
 
 std::string runs_csv_header(const std::vector<SweepAxis>& axes) {
   std::string h = "index,dir";
-  for (const SweepAxis& a : axes) {
-    h += ',';
-    h += csv_field(a.key);
-  }
+  for (const SweepAxis& a : axes)
+    for (const std::string& k : a.keys) {
+      h += ',';
+      h += csv_field(k);
+    }
   h += ",status,exit_code,error,wall_seconds";
   for (const auto& [col, ptr] : summary_columns()) {
     h += ',';
@@ -214,33 +233,37 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
     throw ConfigError("--out", "\"" + o.out_dir.string() + "\"", "exists and is not a directory");
   if (::access(o.executable.c_str(), X_OK) != 0)
     throw ConfigError("executable", "\"" + o.executable.string() + "\"", "is not an executable otfp binary");
-  for (std::size_t i = 0; i < o.axes.size(); ++i)
-    for (std::size_t j = 0; j < i; ++j)
-      if (o.axes[i].key == o.axes[j].key)
-        throw ConfigError("--vary", o.axes[i].key, "is varied twice (give all its values in one --vary)");
+  std::vector<std::string> keys;
+  for (const SweepAxis& a : o.axes)
+    for (const std::string& k : a.keys) {
+      if (std::find(keys.begin(), keys.end(), k) != keys.end())
+        throw ConfigError("--vary", k, "is varied twice (give all its values in one --vary)");
+      keys.push_back(k);
+    }
 
   // The base configuration must parse, and every varied key must exist; a
   // value out of range only fails its own runs (rows with status "invalid").
   parse_config_file(o.config, o.sets);
   for (const SweepAxis& a : o.axes)
-    for (const std::string& v : a.values) {
-      std::vector<std::string> sets = o.sets;
-      sets.push_back(a.key + "=" + v);
-      try {
-        parse_config_file(o.config, sets);
-      } catch (const ConfigError& e) {
-        const std::string what = e.what();
-        if (what.find("unknown key") != std::string::npos || what.find("unknown section") != std::string::npos)
-          throw ConfigError("--vary", a.key + ": " + what);
+    for (const auto& point : a.values)
+      for (std::size_t k = 0; k < a.keys.size(); ++k) {
+        std::vector<std::string> sets = o.sets;
+        sets.push_back(a.keys[k] + "=" + point[k]);
+        try {
+          parse_config_file(o.config, sets);
+        } catch (const ConfigError& e) {
+          const std::string what = e.what();
+          if (what.find("unknown key") != std::string::npos || what.find("unknown section") != std::string::npos)
+            throw ConfigError("--vary", a.keys[k] + ": " + what);
+        }
       }
-    }
 
   const auto grid = expand_grid(o.axes);
   const int width = grid.size() > 1000 ? 4 : 3;
   std::filesystem::create_directories(o.out_dir);
   {
     nlohmann::json axes = nlohmann::json::array();
-    for (const SweepAxis& a : o.axes) axes.push_back({{"key", a.key}, {"values", a.values}});
+    for (const SweepAxis& a : o.axes) axes.push_back({{"keys", a.keys}, {"values", a.values}});
     const nlohmann::json j = {{"config", std::filesystem::absolute(o.config).string()},
                               {"sets", o.sets},
                               {"axes", axes},
@@ -271,7 +294,7 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
     std::filesystem::remove(dir / "summary.json", ec);
     std::vector<std::string> args = {o.executable.string(), "run", o.config.string(), "--out", dir.string(), "--quiet"};
     for (const std::string& s : o.sets) args.insert(args.end(), {"--set", s});
-    for (std::size_t k = 0; k < o.axes.size(); ++k) args.insert(args.end(), {"--set", o.axes[k].key + "=" + grid[i][k]});
+    for (std::size_t k = 0; k < keys.size(); ++k) args.insert(args.end(), {"--set", keys[k] + "=" + grid[i][k]});
     std::vector<char*> argv;
     for (std::string& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);
@@ -320,7 +343,7 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
     write_csv();
     if (o.progress) {
       std::string vals;
-      for (std::size_t k = 0; k < o.axes.size(); ++k) vals += (k ? ", " : "") + o.axes[k].key + "=" + row.values[k];
+      for (std::size_t k = 0; k < keys.size(); ++k) vals += (k ? ", " : "") + keys[k] + "=" + row.values[k];
       int finished = 0;
       for (char dn : done) finished += dn;
       err << fmt::format("[{}/{}] {} {} {:.1f} s ({}){}\n", finished, grid.size(), row.dir, row.status,

@@ -11,18 +11,20 @@
 
 namespace otfp::app {
 
-// One varied key and its values, e.g. "run.dt_factor=0.25,1,4".
+// One varied key and its values, e.g. "run.dt_factor=0.25,1,4", or keys
+// varied together, e.g. "solver.stepper:solver.backend=implicit:ceres,implicit:nlopt".
 struct SweepAxis {
-  std::string key;
-  std::vector<std::string> values;  // TOML inline values or bare words, as for --set
+  std::vector<std::string> keys;
+  std::vector<std::vector<std::string>> values;  // per point, one TOML inline value (or bare word) per key
 };
 
-// Parses "key=v1,v2,...": commas inside [...] or quotes do not split
-// (physics.velocity=[1,0,0],[0,1,0]). Throws ConfigError("--vary", ...).
+// Parses "key=v1,v2,..." or "k1:k2=a1:b1,a2:b2": commas and colons inside
+// [...] or quotes do not split (physics.velocity=[1,0,0],[0,1,0]).
+// Throws ConfigError("--vary", ...).
 SweepAxis parse_vary(const std::string& text);
 
 // Every combination, the first axis varying slowest; each entry holds one
-// value per axis.
+// value per key (all keys of all axes, in order).
 std::vector<std::vector<std::string>> expand_grid(const std::vector<SweepAxis>& axes);
 
 struct SweepOptions {
@@ -39,7 +41,7 @@ struct SweepOptions {
 struct SweepRow {
   int index = 0;
   std::string dir;                   // run directory name under out_dir
-  std::vector<std::string> values;   // one per axis
+  std::vector<std::string> values;   // one per key
   std::string status;                // completed | failed | invalid | timeout | crashed
   int exit_code = 0;
   std::string error;

@@ -1,0 +1,107 @@
+#!/usr/bin/env bash
+# The studies of docs/validation.md, each one `otfp sweep` (or a few) plus
+# scripts/study_plots.py.
+#
+#   scripts/studies.sh STUDY [--smoke | --full] [--jobs N] [--out DIR]
+#
+# STUDY: implicit_explicit | variable_width | diffusivity | convergence | all
+#   default sizes: what docs/validation.md shows (minutes on 2 cores)
+#   --smoke      : tiny sizes, seconds (CI runs these through ctest)
+#   --full       : the papers' larger sizes (hours)
+# Sweeps go to DIR/STUDY (default build/studies); plots and tables to
+# docs/validation/ unless --smoke. Needs a built build/src/cli/otfp (or OTFP).
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+otfp="${OTFP:-$here/build/src/cli/otfp}"
+study="${1:-}"
+shift || true
+size=default
+jobs=2
+out="$here/build/studies"
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --smoke) size=smoke ;;
+    --full) size=full ;;
+    --jobs) jobs="$2"; shift ;;
+    --out) out="$2"; shift ;;
+    *) echo "studies.sh: unknown option $1" >&2; exit 2 ;;
+  esac
+  shift
+done
+[[ -x "$otfp" ]] || { echo "studies.sh: no otfp binary at $otfp (build first, or set OTFP)" >&2; exit 2; }
+ex="$here/examples"
+py=/usr/bin/python3
+[[ -x "$py" ]] || py=python3
+
+# Every scheme of study 1 and 3: stepper:backend:explicit_scheme.
+schemes="solver.stepper:solver.backend:solver.explicit_scheme=explicit:ceres:euler27,explicit:ceres:rk4,explicit:ceres:euler_exact,implicit:ceres:euler27,implicit:nlopt:euler27"
+
+sweep() {  # sweep NAME CONFIG ARGS...
+  local name="$1" config="$2"
+  shift 2
+  rm -rf "$out/$name"
+  # A failed run is a row of runs.csv (exit code 1), which the studies expect
+  # (explicit schemes above their limit); only a usage error stops here.
+  local rc=0
+  "$otfp" sweep "$config" --out "$out/$name" --jobs "$jobs" --set run.vtk_interval=0 "$@" || rc=$?
+  [[ $rc -le 1 ]] || exit "$rc"
+}
+
+implicit_explicit() {
+  local n_sphere=1600 n_box=800 dts="0.25,0.5,1,2,4,10,30,100" t_sphere=1 t_box=4
+  case $size in
+    smoke) n_sphere=100; n_box=400; dts="0.5,4"; t_sphere=0.1; t_box=0.1 ;;
+    full) n_sphere=6400; n_box=3200 ;;
+  esac
+  sweep implicit_explicit/sphere "$ex/sphere_dirichlet.toml" --timeout 900 \
+    --set run.t_end=$t_sphere --set particles.n_inf=$n_sphere --vary "$schemes" --vary run.dt_factor=$dts
+  sweep implicit_explicit/box "$ex/box_mixed.toml" --timeout 900 \
+    --set run.t_end=$t_box --set particles.n_inf=$n_box --vary "$schemes" --vary run.dt_factor=$dts
+}
+
+variable_width() {
+  local n_free=400 n_sphere=1600 t_sphere=1
+  case $size in
+    smoke) n_free=60; n_sphere=100; t_sphere=0.1 ;;
+    full) n_free=3200; n_sphere=6400 ;;
+  esac
+  local widths="solver.width_mode:solver.width_metric=fixed:as_printed,per_particle:as_printed,per_particle:exact"
+  sweep variable_width/free_space "$ex/free_space_heat.toml" --timeout 900 \
+    --set particles.n_inf=$n_free --set run.dt=0.0025 --vary run.dim=1,2,3 --vary "$widths"
+  sweep variable_width/sphere "$ex/sphere_dirichlet.toml" --timeout 1800 \
+    --set run.t_end=$t_sphere --set particles.n_inf=$n_sphere --vary "$widths"
+}
+
+diffusivity() {
+  local n=1024 betas="0.5,1,2,3,4" t_end=0.05
+  case $size in
+    smoke) n=256; betas="1,4"; t_end=0.01 ;;
+    full) n=4096; betas="0.5,0.75,1,1.5,2,2.5,3,3.5,4" ;;
+  esac
+  sweep diffusivity "$ex/periodic_cosine.toml" --timeout 900 --set particles.n_inf=$n --set run.t_end=$t_end \
+    --vary particles.beta_factor=$betas --vary particles.fill_arrangement=lattice,random --vary "$schemes"
+}
+
+convergence() {
+  local sphere="400,800,1600,3200,6400" box="400,800,1600,3200" pipe="1000,2000,4000"
+  case $size in
+    smoke) sphere="50,100"; box="400,500"; pipe="100,200" ;;
+    full) sphere="400,800,1600,3200,6400,12800,25600"; box="400,800,1600,3200,6400,12800"; pipe="1000,2000,4000,8000,16000" ;;
+  esac
+  local t_sphere=1 t_box=4 t_pipe=0.5
+  [[ $size == smoke ]] && { t_sphere=0.05; t_box=0.2; t_pipe=0.02; }
+  sweep convergence/sphere "$ex/sphere_dirichlet.toml" --timeout 3600 --set run.t_end=$t_sphere \
+    --vary particles.n_inf=$sphere
+  sweep convergence/box "$ex/box_mixed.toml" --timeout 3600 --set run.t_end=$t_box --vary particles.n_inf=$box
+  sweep convergence/pipe "$ex/pipe_neumann.toml" --timeout 3600 --set run.t_end=$t_pipe --vary particles.n_inf=$pipe
+}
+
+case "$study" in
+  implicit_explicit | variable_width | diffusivity | convergence) "$study" ;;
+  all) implicit_explicit; variable_width; diffusivity; convergence ;;
+  *) echo "usage: scripts/studies.sh implicit_explicit|variable_width|diffusivity|convergence|all [--smoke|--full] [--jobs N] [--out DIR]" >&2; exit 2 ;;
+esac
+
+if [[ $size != smoke ]]; then
+  "$py" "$here/scripts/study_plots.py" "$study" --sweeps "$out" --docs "$here/docs/validation"
+fi
