@@ -73,13 +73,14 @@ variable_width() {
 }
 
 diffusivity() {
-  local n=1024 betas="0.5,1,2,3,4" t_end=0.05
+  local n=1024 betas="0.5,1,2,3,4" t_end=0.05 dts="0.25,0.05"
   case $size in
-    smoke) n=256; betas="1,4"; t_end=0.01 ;;
+    smoke) n=256; betas="1,4"; t_end=0.01; dts="0.25" ;;
     full) n=4096; betas="0.5,0.75,1,1.5,2,2.5,3,3.5,4" ;;
   esac
   sweep diffusivity "$ex/periodic_cosine.toml" --timeout 900 --set particles.n_inf=$n --set run.t_end=$t_end \
-    --vary particles.beta_factor=$betas --vary particles.fill_arrangement=lattice,random --vary "$schemes"
+    --vary particles.beta_factor=$betas --vary particles.fill_arrangement=lattice,random --vary "$schemes" \
+    --vary run.dt_factor=$dts
 }
 
 convergence() {

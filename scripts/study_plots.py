@@ -302,26 +302,30 @@ def diffusivity(sweeps, docs):
     if not os.path.exists(os.path.join(d, "runs.csv")):
         return
     rows = read_rows(os.path.join(d, "runs.csv"))
+    dts = sorted({num(r, "run.dt_factor") for r in rows})
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
     for k, arr in enumerate(("lattice", "random")):
         ax = axes[k]
         for sch in SCHEME_ORDER:
-            rs = sorted([r for r in rows if scheme(r) == sch and r["particles.fill_arrangement"] == arr],
-                        key=lambda r: num(r, "particles.beta_factor"))
-            if not rs:
-                continue
             color, marker = SCHEME_STYLE[sch]
-            ax.plot([num(r, "particles.beta_factor") for r in rs], [num(r, "rate_ratio") for r in rs],
-                    marker=marker, color=color, label=sch)
+            for dt in dts:
+                rs = sorted([r for r in rows if scheme(r) == sch and r["particles.fill_arrangement"] == arr
+                             and num(r, "run.dt_factor") == dt], key=lambda r: num(r, "particles.beta_factor"))
+                if not rs:
+                    continue
+                ax.plot([num(r, "particles.beta_factor") for r in rs], [num(r, "rate_ratio") for r in rs],
+                        marker=marker, color=color, linestyle="-" if dt == min(dts) else "--",
+                        label=f"{sch}, dt = {fmt(dt)} dt_expl")
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_xlabel("beta dr^2")
         ax.set_ylabel("measured decay rate / (kappa k^2)")
         ax.set_title(f"{arr} arrangement")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=6)
     ax = axes[2]
     for r in rows:
-        if scheme(r) == "implicit ceres" and r["particles.fill_arrangement"] == "lattice":
+        if (scheme(r) == "implicit ceres" and r["particles.fill_arrangement"] == "lattice"
+                and num(r, "run.dt_factor") == min(dts)):
             s = series(d, r)
             if s is None:
                 continue
@@ -347,15 +351,16 @@ def diffusivity(sweeps, docs):
     for arr in ("lattice", "random"):
         table = []
         for sch in SCHEME_ORDER:
-            line = [sch]
-            for b in betas:
-                rr = [r for r in rows if scheme(r) == sch and r["particles.fill_arrangement"] == arr
-                      and num(r, "particles.beta_factor") == b]
-                line.append(fmt(num(rr[0], "rate_ratio")) + " / " + fmt(num(rr[0], "rate_ratio_time_discrete"))
-                            if rr and rr[0]["status"] == "completed" else (rr[0]["status"] if rr else "-"))
-            table.append(line)
+            for dt in dts:
+                line = [sch, dt]
+                for b in betas:
+                    rr = [r for r in rows if scheme(r) == sch and r["particles.fill_arrangement"] == arr
+                          and num(r, "particles.beta_factor") == b and num(r, "run.dt_factor") == dt]
+                    line.append(fmt(num(rr[0], "rate_ratio")) + " / " + fmt(num(rr[0], "rate_ratio_time_discrete"))
+                                if rr and rr[0]["status"] == "completed" else (rr[0]["status"] if rr else "-"))
+                table.append(line)
         md.append(f"## {arr} arrangement: rate ratio / time-discrete ratio\n")
-        md.append(md_table(["scheme"] + [f"beta dr^2 = {fmt(b)}" for b in betas], table))
+        md.append(md_table(["scheme", "dt/dt_expl"] + [f"beta dr^2 = {fmt(b)}" for b in betas], table))
     with open(os.path.join(docs, "diffusivity.md"), "w") as f:
         f.write("\n".join(md))
     copy_data(d, os.path.join(docs, "data", "diffusivity"),
@@ -454,17 +459,51 @@ def convergence(sweeps, docs):
         f.write("\n".join(md))
 
 
+def check(sweeps, study):
+    """Every sweep of the study has its whole grid in runs.csv, every implicit
+    run completed, and every completed run has finite reference errors."""
+    problems = []
+    found = 0
+    for root, _dirs, files in os.walk(os.path.join(sweeps, study)):
+        if "runs.csv" not in files:
+            continue
+        found += 1
+        with open(os.path.join(root, "sweep.json")) as f:
+            expected = json.load(f)["runs"]
+        rows = read_rows(os.path.join(root, "runs.csv"))
+        if len(rows) != expected:
+            problems.append(f"{root}: {len(rows)} rows, grid has {expected}")
+        for r in rows:
+            if r["status"] not in ("completed", "failed", "invalid", "timeout", "crashed"):
+                problems.append(f"{root} {r['dir']}: unknown status {r['status']}")
+            if r.get("solver.stepper", "implicit") == "implicit" and r["status"] != "completed":
+                problems.append(f"{root} {r['dir']}: implicit run {r['status']}: {r['error']}")
+            if r["status"] == "completed" and r.get("reference") and not math.isfinite(num(r, "ref_max_abs_error")):
+                problems.append(f"{root} {r['dir']}: reference error missing")
+    if found == 0:
+        problems.append(f"{study}: no sweep found under {sweeps}")
+    return problems
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("study", choices=["implicit_explicit", "variable_width", "diffusivity", "convergence", "all"])
     ap.add_argument("--sweeps", required=True, help="directory holding the sweeps (scripts/studies.sh --out)")
     ap.add_argument("--docs", required=True, help="where the plots, tables and data copies go")
+    ap.add_argument("--check", action="store_true", help="also check the sweeps' grids; exit 1 on a problem")
     a = ap.parse_args()
     os.makedirs(a.docs, exist_ok=True)
     studies = ["implicit_explicit", "variable_width", "diffusivity", "convergence"] if a.study == "all" else [a.study]
+    problems = []
     for s in studies:
         globals()[s](a.sweeps, a.docs)
         print(f"study_plots: {s} -> {a.docs}", file=sys.stderr)
+        if a.check:
+            problems += check(a.sweeps, s)
+    for p in problems:
+        print("study_plots: check failed: " + p, file=sys.stderr)
+    if problems:
+        sys.exit(1)
 
 
 if __name__ == "__main__":

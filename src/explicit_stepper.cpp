@@ -1,4 +1,6 @@
 #include <chrono>
+#include <stdexcept>
+#include <string>
 #include <cmath>
 
 #include "otfp/stepper.hpp"
@@ -71,6 +73,7 @@ StepSummary ExplicitStepper::step(ParticleSet& particles, double dt) {
   functional_.set_dt(dt);
   functional_.set_reference(x0, s, particles.masses());
   const int builds_before = functional_.list().build_count();
+  const double list_seconds_before = functional_.list().build_seconds();
   const std::uint64_t pairs_before = functional_.entropy().pair_evaluations();
   functional_.list().build(x0, s, functional_.periodicity());  // particles may have moved in memory
   summary.parts_before = functional_.evaluate(x0, s, nullptr);
@@ -78,29 +81,38 @@ StepSummary ExplicitStepper::step(ParticleSet& particles, double dt) {
 
   const std::size_t n = x0.size();
   std::vector<Vec3> x = x0, v;
-  if (options_.scheme == ExplicitScheme::Rk4Force27) {
-    std::vector<Vec3> k1, k2, k3, k4, tmp(n);
-    velocity(x0, s, k1);
-    for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + 0.5 * dt * k1[p];
-    velocity(tmp, s, k2);
-    for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + 0.5 * dt * k2[p];
-    velocity(tmp, s, k3);
-    for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + dt * k3[p];
-    velocity(tmp, s, k4);
-    for (std::size_t p = 0; p < n; ++p) x[p] = x0[p] + dt / 6.0 * (k1[p] + 2.0 * k2[p] + 2.0 * k3[p] + k4[p]);
-    summary.evaluations = 4;
-  } else {
-    velocity(x0, s, v);
-    for (std::size_t p = 0; p < n; ++p) x[p] = x0[p] + dt * v[p];
-    summary.evaluations = 1;
-  }
   bool finite = true;
-  for (const auto& p : x) finite = finite && p.allFinite();
+  std::string failure = "explicit update produced non-finite positions";
+  try {
+    if (options_.scheme == ExplicitScheme::Rk4Force27) {
+      std::vector<Vec3> k1, k2, k3, k4, tmp(n);
+      velocity(x0, s, k1);
+      for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + 0.5 * dt * k1[p];
+      velocity(tmp, s, k2);
+      for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + 0.5 * dt * k2[p];
+      velocity(tmp, s, k3);
+      for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + dt * k3[p];
+      velocity(tmp, s, k4);
+      for (std::size_t p = 0; p < n; ++p) x[p] = x0[p] + dt / 6.0 * (k1[p] + 2.0 * k2[p] + 2.0 * k3[p] + k4[p]);
+      summary.evaluations = 4;
+    } else {
+      velocity(x0, s, v);
+      for (std::size_t p = 0; p < n; ++p) x[p] = x0[p] + dt * v[p];
+      summary.evaluations = 1;
+    }
+    for (const auto& p : x) finite = finite && p.allFinite();
+    if (finite) {
+      functional_.set_reference(x0, s, particles.masses());
+      summary.parts_after = functional_.evaluate(x, s, nullptr);
+      summary.f_after = summary.parts_after.total();
+    }
+  } catch (const std::runtime_error& e) {
+    // An RK4 stage that diverged reaches the neighbour search first.
+    finite = false;
+    failure = std::string("explicit update diverged: ") + e.what();
+  }
   summary.iterations = 1;
   if (finite) {
-    functional_.set_reference(x0, s, particles.masses());
-    summary.parts_after = functional_.evaluate(x, s, nullptr);
-    summary.f_after = summary.parts_after.total();
     const Periodicity& per = functional_.periodicity();
     for (auto& p : x) p = per.wrap(p);
     particles.positions() = std::move(x);
@@ -109,9 +121,10 @@ StepSummary ExplicitStepper::step(ParticleSet& particles, double dt) {
   } else {
     summary.accepted = false;
     summary.reason = TerminationReason::NonFinite;
-    summary.message = "explicit update produced non-finite positions";
+    summary.message = failure;
   }
   summary.list_builds = functional_.list().build_count() - builds_before;
+  summary.list_seconds = functional_.list().build_seconds() - list_seconds_before;
   summary.pair_evaluations = functional_.entropy().pair_evaluations() - pairs_before;
   summary.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return summary;

@@ -149,6 +149,7 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   functional_.set_dt(dt);
   functional_.set_reference(x, s, m);
   const int builds_before = functional_.list().build_count();
+  const double list_seconds_before = functional_.list().build_seconds();
   const std::uint64_t pairs_before = functional_.entropy().pair_evaluations();
   functional_.list().build(x, s, functional_.periodicity());  // particles may have been added or removed
 
@@ -215,6 +216,7 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
                                : "non-finite F at the start of the step";
   }
   summary.list_builds += functional_.list().build_count() - builds_before;
+  summary.list_seconds += functional_.list().build_seconds() - list_seconds_before;
   summary.pair_evaluations += functional_.entropy().pair_evaluations() - pairs_before;
   if (ok) {
     x = std::move(x_new);

@@ -3,6 +3,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -133,6 +134,7 @@ NeighborList::NeighborList(NeighborOptions options) : options_(options) { option
 
 void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& width_s,
                          const Periodicity& periodicity) {
+  const auto t0 = std::chrono::steady_clock::now();
   per_ = periodicity;
   const std::size_t n = x.size();
   double s_max = 0.0, s_min = n ? width_s[0] : 1.0;
@@ -213,6 +215,7 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
   x_build_ = x;
   built_ = true;
   ++build_count_;
+  build_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
 double NeighborList::max_displacement(const std::vector<Vec3>& x) const {

@@ -176,3 +176,22 @@ TEST(BlobDensity, IntegratesToTotalMass1D) {
   for (double v : rho) mass += v * h;
   EXPECT_NEAR(mass, ps.total_mass(), 1e-9 * ps.total_mass());
 }
+
+// A cloud blown apart by an unstable explicit step: a few particles very far
+// away must not make the cell grid huge (the count is capped near n), and the
+// list still equals brute force. Non-finite positions are rejected by name.
+TEST(NeighborList, FarFlungParticlesKeepTheGridSmallAndTheListExact) {
+  ParticleSet ps = random_cloud(3, 400, -1.0, 1.0, 0.05, 0.1, 1.0, 77);
+  ps.positions()[3] = Vec3(1e200, -1e150, 3.0);
+  ps.positions()[7] = Vec3(-1e12, 5e11, 1e13);
+  NeighborList nl;
+  nl.build(ps.positions(), ps.widths(), Periodicity::none(3));
+  EXPECT_EQ(list_pairs(nl), brute_pairs(ps.positions(), nl.list_radius(), Periodicity::none(3)));
+  ps.positions()[5] = Vec3(std::nan(""), 0.0, 0.0);
+  try {
+    nl.build(ps.positions(), ps.widths(), Periodicity::none(3));
+    ADD_FAILURE() << "accepted a NaN position";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("particle 5"), std::string::npos) << e.what();
+  }
+}

@@ -112,6 +112,7 @@ class NeighborList {
   double skin() const { return skin_; }
   std::size_t num_entries() const { return indices_.size(); }  // = 2 * number of pairs
   int build_count() const { return build_count_; }
+  double build_seconds() const { return build_seconds_; }  // wall time of all builds so far
   const Periodicity& periodicity() const { return per_; }
   const NeighborOptions& options() const { return options_; }
 
@@ -128,6 +129,7 @@ class NeighborList {
   std::vector<Vec3> x_build_;
   double list_radius_ = 0.0, cutoff_ = 0.0, skin_ = 0.0;
   int build_count_ = 0;
+  double build_seconds_ = 0.0;
   bool built_ = false;
   CellGrid grid_;
 };

@@ -39,6 +39,7 @@ struct StepSummary {
   int list_builds = 0;                      // neighbour-list builds during the step
   double wall_seconds = 0.0;
   double solver_seconds = 0.0;              // time inside the optimiser itself
+  double list_seconds = 0.0;                // time in neighbour-list builds
   std::uint64_t pair_evaluations = 0;
   long inserted = 0, removed = 0;           // particles, filled by source/projection steps
 };

@@ -84,7 +84,7 @@ struct StepRecord {
   std::optional<double> reference;                // the primary reference value (first reference column)
   std::vector<double> reference_values;           // the reference columns of series.csv, in order
   // Timing: kept out of series.csv so that it is reproducible byte for byte.
-  double wall_seconds = 0.0, step_seconds = 0.0, solver_seconds = 0.0;
+  double wall_seconds = 0.0, step_seconds = 0.0, solver_seconds = 0.0, list_seconds = 0.0;
 };
 
 struct RunOptions {
