@@ -18,6 +18,8 @@ void ImplicitOptions::validate() const {
   minimizer.validate();
   require(std::isfinite(displacement_tolerance) && displacement_tolerance > 0.0, "displacement_tolerance",
           displacement_tolerance, "must be finite and > 0");
+  require(relative_tolerance >= 0.0 && relative_tolerance <= 1.0, "relative_tolerance", relative_tolerance,
+          "must be in [0, 1] (0: absolute rule only)");
   require(std::isfinite(kappa) && kappa > 0.0, "kappa", kappa, "must be finite and > 0");
   require(std::isfinite(rho_ref) && rho_ref > 0.0, "rho_ref", rho_ref, "must be finite and > 0");
   require(max_halvings >= 0 && max_halvings <= 20, "max_halvings", max_halvings, "must be in [0, 20]");
@@ -164,8 +166,34 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   mo.gradient_tolerance = options_.displacement_tolerance * s_min;
 
   double f0 = 0.0;
-  const bool start_ok = objective.evaluate(z.data(), &f0, nullptr);
+  std::vector<double> g0(objective.num_variables());
+  const bool start_ok = objective.evaluate(z.data(), &f0, g0.data());
   const FunctionalParts before = objective.parts();
+
+  // A line search stalls once the decrease it must see is below the round-off
+  // of F. With unit curvature in the scaled unknowns that happens at
+  // |g_z|^2 ~ eps_F, i.e. at a displacement ~ sqrt(eps_F dt / m). Closer to
+  // stationarity than that no solver can certify.
+  double m_min = m.empty() ? 1.0 : m[0], mass = 0.0;
+  for (double v : m) {
+    m_min = std::min(m_min, v);
+    mass += v;
+  }
+  const double f_scale =
+      std::abs(before.transport) + std::abs(before.entropy) + std::abs(before.barrier) + options_.kappa * mass;
+  const double eps_f = 64.0 * std::numeric_limits<double>::epsilon() * f_scale;
+  const double floor_measure = std::sqrt(eps_f * dt / m_min);
+  // Relative rule: the first gradient step is the explicit displacement of
+  // the step; at small dt the absolute rule alone would stop before the
+  // solution has moved by much more than the tolerance (under-diffusion).
+  if (start_ok && options_.relative_tolerance > 0.0) {
+    const double initial = objective.stopping_measure(z.data(), g0.data());
+    if (initial > 0.0)
+      mo.gradient_tolerance =
+          std::max(std::min(mo.gradient_tolerance, options_.relative_tolerance * initial), floor_measure);
+  }
+  summary.gradient_tolerance = mo.gradient_tolerance;
+
   MinimizerSummary ms;
   if (start_ok) ms = minimize(objective, z, mo);
   summary.reason = start_ok ? ms.reason : TerminationReason::NonFinite;
@@ -177,24 +205,10 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   summary.f_before = f0;
 
   bool ok = start_ok && ms.success;
-  if (start_ok && !ms.success && ms.reason == TerminationReason::LineSearchFailure) {
-    // A line search stalls once the decrease it must see is below the round-off of F.
-    // With unit curvature in the scaled unknowns that happens at |g_z|^2 ~ eps_F,
-    // i.e. at a displacement ~ sqrt(eps_F dt / m). Closer to stationarity than
-    // that no solver can certify, so such a point counts as converged.
-    double m_min = m.empty() ? 1.0 : m[0], mass = 0.0;
-    for (double v : m) {
-      m_min = std::min(m_min, v);
-      mass += v;
-    }
-    const double f_scale = std::abs(before.transport) + std::abs(before.entropy) + std::abs(before.barrier) +
-                           options_.kappa * mass;
-    const double eps_f = 64.0 * std::numeric_limits<double>::epsilon() * f_scale;
-    const double floor_measure = std::sqrt(eps_f * dt / m_min);
-    if (ms.final_stopping_measure <= std::max(mo.gradient_tolerance, floor_measure)) {
-      ok = true;
-      summary.message = "converged to the round-off floor of F";
-    }
+  if (start_ok && !ms.success && ms.reason == TerminationReason::LineSearchFailure &&
+      ms.final_stopping_measure <= std::max(mo.gradient_tolerance, floor_measure)) {
+    ok = true;
+    summary.message = "converged to the round-off floor of F";
   }
   std::vector<Vec3> x_new = x;
   std::vector<double> s_new = s;

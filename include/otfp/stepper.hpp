@@ -39,6 +39,7 @@ struct StepSummary {
   int list_builds = 0;                      // neighbour-list builds during the step
   double wall_seconds = 0.0;
   double solver_seconds = 0.0;              // time inside the optimiser itself
+  double gradient_tolerance = 0.0;          // stopping threshold used (implicit: after the relative rule)
   double list_seconds = 0.0;                // time in neighbour-list builds
   std::uint64_t pair_evaluations = 0;
   long inserted = 0, removed = 0;           // particles, filled by source/projection steps
@@ -47,6 +48,7 @@ struct StepSummary {
 struct ImplicitOptions {
   MinimizerOptions minimizer;                        // backend, algorithm, caps (gradient_tolerance is set per step)
   double displacement_tolerance = 1e-2;              // stop when max |dt/m dF/dx| <= this x smallest width s
+  double relative_tolerance = 1e-2;                  // ... or <= this x the step's first gradient step, if smaller
   WidthMode width_mode = WidthMode::Fixed;           // optimise widths or not
   WidthMetric width_metric = WidthMetric::AsPrinted; // c_w = 1 or d/2
   double kappa = 1.0;                                // diffusivity

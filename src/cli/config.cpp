@@ -84,6 +84,7 @@ const std::vector<KeySpec>& schema() {
       {"solver.width_mode", Kind::String, {"fixed", "per_particle"}},
       {"solver.width_metric", Kind::String, {"as_printed", "exact"}},
       {"solver.displacement_tolerance", Kind::Float, {}},
+      {"solver.relative_tolerance", Kind::Float, {}},
       {"solver.max_iterations", Kind::Int, {}},
       {"solver.max_evaluations", Kind::Int, {}},
       {"solver.lbfgs_memory", Kind::Int, {}},
@@ -517,6 +518,7 @@ Config to_config(const toml::table& root) {
     r.get("width_mode", s.width_mode);
     r.get("width_metric", s.width_metric);
     r.get("displacement_tolerance", s.displacement_tolerance);
+    r.get("relative_tolerance", s.relative_tolerance);
     r.get("max_iterations", s.max_iterations);
     r.get("max_evaluations", s.max_evaluations);
     r.get("lbfgs_memory", s.lbfgs_memory);
@@ -678,6 +680,8 @@ void validate(const Config& c) {
   if (s.width_mode == "per_particle" && s.stepper != "implicit")
     throw ConfigError("solver.width_mode", quoted(s.width_mode), "needs solver.stepper = \"implicit\"");
   positive(s.displacement_tolerance, "solver.displacement_tolerance");
+  if (!(s.relative_tolerance >= 0.0 && s.relative_tolerance <= 1.0))
+    throw ConfigError("solver.relative_tolerance", shown(s.relative_tolerance), "must be in [0, 1] (0: absolute rule only)");
   at_least<std::int64_t>(s.max_iterations, 1, "solver.max_iterations");
   at_least<std::int64_t>(s.max_evaluations, 1, "solver.max_evaluations");
   at_least<std::int64_t>(s.lbfgs_memory, 1, "solver.lbfgs_memory");
@@ -818,6 +822,7 @@ std::string to_toml(const Config& c) {
                   {"width_mode", s.width_mode},
                   {"width_metric", s.width_metric},
                   {"displacement_tolerance", s.displacement_tolerance},
+                  {"relative_tolerance", s.relative_tolerance},
                   {"max_iterations", s.max_iterations},
                   {"max_evaluations", s.max_evaluations},
                   {"lbfgs_memory", s.lbfgs_memory},

@@ -416,6 +416,7 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
       io.minimizer.max_evaluations = static_cast<int>(s.max_evaluations);
       io.minimizer.lbfgs_memory = static_cast<int>(s.lbfgs_memory);
       io.displacement_tolerance = s.displacement_tolerance;
+      io.relative_tolerance = s.relative_tolerance;
       io.width_mode = width_mode_from_string(s.width_mode);
       io.width_metric = s.width_metric == "exact" ? WidthMetric::ExactGaussian : WidthMetric::AsPrinted;
       io.kappa = c.physics.kappa;
@@ -496,6 +497,7 @@ nlohmann::json Simulation::describe() const {
                    {"width_mode", s.width_mode},
                    {"width_metric", s.width_metric},
                    {"displacement_tolerance", s.displacement_tolerance},
+                   {"relative_tolerance", s.relative_tolerance},
                    {"max_iterations", s.max_iterations},
                    {"max_evaluations", s.max_evaluations},
                    {"lbfgs_memory", s.lbfgs_memory},

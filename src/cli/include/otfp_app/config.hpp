@@ -98,6 +98,7 @@ struct SolverSection {
   std::string width_mode = "fixed";
   std::string width_metric = "as_printed";  // as_printed | exact
   double displacement_tolerance = 1e-3;
+  double relative_tolerance = 1e-2;
   std::int64_t max_iterations = 1000;
   std::int64_t max_evaluations = 5000;
   std::int64_t lbfgs_memory = 10;
