@@ -105,6 +105,39 @@ TEST(ImplicitStepper, MatchesExplicitAsDtVanishes) {
   EXPECT_NEAR(order2, 2.0, 0.25) << diffs[1] << " " << diffs[2];
 }
 
+// Default tolerances at a step 1000x below the explicit limit: the whole
+// displacement of the step is then below the absolute tolerance (1e-2 s), so
+// without the relative rule the solve stops before it starts and nothing
+// moves; with it (1e-2 of the first gradient step) the step moves as it must.
+// Reference: forward Euler with the exact gradient, which agrees with the
+// implicit step to O(dt^2): within 5% of the displacement.
+TEST(ImplicitStepper, RelativeRuleConvergesTinySteps) {
+  const int dim = 2;
+  const std::size_t n = 60;
+  const double dr = std::pow(1.0 / n, 1.0 / dim), s = dr / std::sqrt(2.0);
+  ParticleSet start = ball_cloud(dim, n, 0.5, s, 5);
+  const double dt = 0.001 * dr * dr;
+  ParticleSet b = start;
+  ExplicitOptions eo;
+  eo.scheme = ExplicitScheme::EulerExactGradient;
+  ASSERT_TRUE(ExplicitStepper(dim, eo).step(b, dt).accepted);
+  const double moved = max_difference(by_id(b), by_id(start));
+  ASSERT_LT(moved, 1e-2 * s) << "the step must be in the regime the relative rule is for";
+  for (double rel : {1e-2, 0.0}) {
+    ImplicitOptions io;
+    io.relative_tolerance = rel;
+    ImplicitStepper implicit(dim, io);
+    ParticleSet a = start;
+    const StepSummary si = implicit.step(a, dt);
+    ASSERT_TRUE(si.accepted) << si.message;
+    const double err = max_difference(by_id(a), by_id(b)) / moved;
+    if (rel > 0.0)
+      EXPECT_LT(err, 0.05) << "relative error of the displacement";
+    else
+      EXPECT_GT(err, 0.9) << "without the relative rule nothing moves";
+  }
+}
+
 namespace {
 void backends_agree(int dim, WidthMode widths) {
   const std::size_t n = dim == 2 ? 120 : 200;
