@@ -60,10 +60,10 @@ implicit_explicit() {
 }
 
 variable_width() {
-  local n_free=400 n_sphere=1600 t_sphere=1
+  local n_free=400 n_sphere=400 t_sphere=1
   case $size in
     smoke) n_free=60; n_sphere=100; t_sphere=0.1 ;;
-    full) n_free=3200; n_sphere=6400 ;;
+    full) n_free=3200; n_sphere=1600 ;;
   esac
   local widths="solver.width_mode:solver.width_metric=fixed:as_printed,per_particle:as_printed,per_particle:exact"
   sweep variable_width/free_space "$ex/free_space_heat.toml" --timeout 900 \
