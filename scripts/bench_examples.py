@@ -51,8 +51,14 @@ def main():
                "--set", "run.vtk_interval=0", "--set", "run.threads=1"]
         for s in sets:
             cmd += ["--set", s]
+        summary_path = os.path.join(out, "summary.json")
+        if os.path.exists(summary_path):
+            os.remove(summary_path)  # never report a previous run's figures
         rc = subprocess.call(cmd)
-        with open(os.path.join(out, "summary.json")) as f:
+        if not os.path.exists(summary_path):
+            print(f"| {name} | {' '.join(sets) or '-'} | exit {rc}: no summary.json (see {out}) |")
+            continue
+        with open(summary_path) as f:
             j = json.load(f)
         p = j["profile"]
         wall = j["wall_seconds"]

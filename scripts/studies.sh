@@ -22,8 +22,10 @@ while [[ $# -gt 0 ]]; do
   case "$1" in
     --smoke) size=smoke ;;
     --full) size=full ;;
-    --jobs) jobs="$2"; shift ;;
-    --out) out="$2"; shift ;;
+    --jobs | --out)
+      [[ $# -ge 2 ]] || { echo "studies.sh: $1 needs a value" >&2; exit 2; }
+      if [[ $1 == --jobs ]]; then jobs="$2"; else out="$2"; fi
+      shift ;;
     *) echo "studies.sh: unknown option $1" >&2; exit 2 ;;
   esac
   shift

@@ -92,7 +92,7 @@ def md_table(header, rows):
 
 
 def copy_data(sweep_dir, dest, columns, every=None):
-    """runs.csv and each run's series (selected columns, at most ~200 rows)."""
+    """runs.csv and each run's series (selected columns, at most ~100 rows, 6 digits)."""
     os.makedirs(dest, exist_ok=True)
     shutil.copy(os.path.join(sweep_dir, "runs.csv"), os.path.join(dest, "runs.csv"))
     for row in read_rows(os.path.join(sweep_dir, "runs.csv")):
@@ -103,7 +103,7 @@ def copy_data(sweep_dir, dest, columns, every=None):
         if not rows:
             continue
         keep = [c for c in columns if c in rows[0]]
-        stride = every or max(1, len(rows) // 200)
+        stride = every or max(1, len(rows) // 100)
         picked = rows[::stride]
         if picked[-1] is not rows[-1]:
             picked.append(rows[-1])
@@ -111,7 +111,8 @@ def copy_data(sweep_dir, dest, columns, every=None):
             w = csv.writer(f)
             w.writerow(keep)
             for r in picked:
-                w.writerow([r[c] for c in keep])
+                # Integers (counts) as they are, other numbers to 6 digits.
+                w.writerow([r[c] if r[c].lstrip("-").isdigit() else f"{float(r[c]):.6g}" for c in keep])
 
 
 def fit_power(x, y):
@@ -226,7 +227,7 @@ def implicit_explicit(sweeps, docs):
         done = [r for r in rows if r["status"] == "completed"]
         best = min((num(r, "ref_mean_abs_error") for r in done), default=float("nan"))
         if math.isfinite(best):
-            thresholds = [round(best * f, 4) for f in (1.1, 1.5, 2.0, 3.0)]
+            thresholds = [float(f"{best * f:.3g}") for f in (1.1, 1.5, 2.0, 3.0)]
             tts = []
             for sch in SCHEME_ORDER:
                 line = [sch]

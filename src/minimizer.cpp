@@ -108,6 +108,10 @@ Algorithm algorithm_from_string(const std::string& s) {
 void MinimizerOptions::validate() const {
   require(std::isfinite(gradient_tolerance) && gradient_tolerance > 0.0, "solver.gradient_tolerance",
           gradient_tolerance, "must be finite and > 0");
+  require(relative_gradient_tolerance >= 0.0 && relative_gradient_tolerance <= 1.0,
+          "solver.relative_gradient_tolerance", relative_gradient_tolerance, "must be in [0, 1] (0 disables it)");
+  require(std::isfinite(gradient_tolerance_floor) && gradient_tolerance_floor >= 0.0, "solver.gradient_tolerance_floor",
+          gradient_tolerance_floor, "must be finite and >= 0");
   require(std::isfinite(function_tolerance) && function_tolerance >= 0.0, "solver.function_tolerance",
           function_tolerance, "must be finite and >= 0 (0 disables it)");
   require(max_iterations >= 1, "solver.max_iterations", max_iterations, "must be >= 1");
@@ -190,7 +194,8 @@ double TrackedObjective::measure(const double* z, const double* gradient) {
 
 // ---------------------------------------------------------------- minimize
 
-MinimizerSummary minimize(Objective& objective, std::vector<double>& z, const MinimizerOptions& options) {
+MinimizerSummary minimize(Objective& objective, std::vector<double>& z, const MinimizerOptions& options_in) {
+  MinimizerOptions options = options_in;  // the relative rule sets gradient_tolerance after the start point
   options.validate();
   const std::size_t n = objective.num_variables();
   require(z.size() == n, "z.size()", static_cast<double>(z.size()),
@@ -222,6 +227,11 @@ MinimizerSummary minimize(Objective& objective, std::vector<double>& z, const Mi
   start.measure = tracked.measure(z.data(), start.gradient.data());
   tracked.rethrow_if_failed();
   summary.initial_value = start.value;
+  if (options.relative_gradient_tolerance > 0.0 && start.measure > 0.0)
+    options.gradient_tolerance =
+        std::max(std::min(options.gradient_tolerance, options.relative_gradient_tolerance * start.measure),
+                 options.gradient_tolerance_floor);
+  summary.gradient_tolerance = options.gradient_tolerance;
 
   if (start.measure <= options.gradient_tolerance || n == 0) {
     summary.reason = TerminationReason::Converged;

@@ -43,7 +43,8 @@ void NeighborOptions::validate() const {
 
 int CellGrid::cell_coord(double v, int axis) const {
   // Clamped in double first: the cast of a far-away coordinate would overflow.
-  const double t = std::clamp((v - origin_[axis]) / cell_width_[axis], -1e9, 1e9);
+  double t = std::clamp((v - origin_[axis]) / cell_width_[axis], -1e9, 1e9);
+  if (std::isnan(t)) t = 0.0;  // build() rejects NaN positions; a NaN query must not reach the cast
   int c = static_cast<int>(std::floor(t));
   if (per_.period[axis] > 0.0) {
     c %= n_[axis];

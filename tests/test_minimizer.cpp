@@ -182,6 +182,32 @@ TEST(Minimizer, CeresAndNloptReachSameMinimizerOnQuadratic) {
   }
 }
 
+// The relative rule: with a loose absolute tolerance, both backends still
+// stop only once the measure is below rel x its start value, and report the
+// threshold they used; the floor caps how tight the rule gets.
+TEST(Minimizer, RelativeToleranceTightensTheAbsoluteOne) {
+  const std::size_t n = 20;
+  const Quadratic q(n);
+  for (Backend b : kBackends) {
+    TestObjective obj(n, q.function());
+    std::vector<double> z(n, 0.0);
+    const double m0 = obj.measure_at(z);
+    MinimizerOptions o = make_options(b, Algorithm::Lbfgs, 10.0 * m0);  // absolute rule alone: stop at once
+    o.relative_gradient_tolerance = 1e-4;
+    MinimizerSummary s = otfp::minimize(obj, z, o);
+    EXPECT_EQ(s.reason, TerminationReason::Converged) << s.message;
+    EXPECT_DOUBLE_EQ(s.gradient_tolerance, 1e-4 * m0);
+    EXPECT_LE(obj.measure_at(z), 1e-4 * m0);
+    EXPECT_GT(s.iterations, 0);
+    // Floor above rel x m0: the floor wins.
+    z.assign(n, 0.0);
+    o.gradient_tolerance_floor = 1e-2 * m0;
+    s = otfp::minimize(obj, z, o);
+    EXPECT_DOUBLE_EQ(s.gradient_tolerance, 1e-2 * m0);
+    EXPECT_LE(obj.measure_at(z), 1e-2 * m0);
+  }
+}
+
 TEST(Minimizer, LbfgsSolvesRosenbrock2d) {
   for (Backend b : kBackends) {
     SCOPED_TRACE(otfp::to_string(b));

@@ -42,6 +42,8 @@ struct MinimizerOptions {
   Backend backend = Backend::Ceres;                // which library runs the minimisation
   Algorithm algorithm = Algorithm::Lbfgs;          // must be offered by the backend
   double gradient_tolerance = 1e-6;                // stop when Objective::stopping_measure <= this
+  double relative_gradient_tolerance = 0.0;        // ... or <= this x its value at the start, if smaller (0: off)
+  double gradient_tolerance_floor = 0.0;           // the relative rule never asks for less than this
   double function_tolerance = 0.0;                 // relative change of f to stop at (0: off)
   int max_iterations = 1000;                       // iteration cap (Ceres' default of 50 is too low)
   int max_evaluations = 5000;                      // cap on value+gradient evaluations
@@ -68,6 +70,7 @@ struct MinimizerSummary {
   double initial_value = 0.0;
   double final_value = 0.0;
   double final_stopping_measure = 0.0;
+  double gradient_tolerance = 0.0;  // the threshold used (after the relative rule)
   int iterations = 0;
   int evaluations = 0;          // value+gradient evaluations requested by the backend
   double solver_seconds = 0.0;  // wall time inside the backend minus time inside the objective

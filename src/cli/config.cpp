@@ -707,6 +707,9 @@ void validate(const Config& c) {
   if (g.reference == "cosine_mode" && (type != "periodic_box" || pa.fill != "cosine"))
     throw ConfigError("diagnostics.reference", "\"cosine_mode\"",
                       "needs domain.type = \"periodic_box\" and particles.fill = \"cosine\"");
+  if (g.reference == "cosine_mode" && !(pa.fill_amplitude > 0.0))
+    throw ConfigError("particles.fill_amplitude", shown(pa.fill_amplitude),
+                      "must be > 0 with diagnostics.reference = \"cosine_mode\" (the mode to follow)");
 }
 
 Config finish(toml::table& root, const std::vector<std::string>& overrides, const std::string& source) {

@@ -269,6 +269,11 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
 
   if (pa.fill_arrangement == "lattice") {
     // Cell-centred lattice of spacing ~dr: round(edge / dr) points per axis.
+    double total = 1.0;  // in double first: an extreme box must not overflow the count
+    for (int k = 0; k < dim; ++k) total *= std::max(1.0, std::round((c.domain.hi[k] - c.domain.lo[k]) / d.dr));
+    if (!(total <= 1e8))
+      throw ConfigError("particles.fill_arrangement", "\"lattice\"",
+                        fmt::format("gives {:.3g} lattice points (at most 1e8)", total));
     d.fill_count = 1;
     for (int k = 0; k < dim; ++k) {
       d.lattice_counts[static_cast<std::size_t>(k)] =
@@ -616,6 +621,7 @@ RunResult Simulation::run(const RunOptions& options) {
   double trap_mass_inside = 0.0, trap_mass_layer = 0.0, trap_j_inside = 0.0, trap_j_layer = 0.0;
   double S0 = 0.0, A0 = 0.0;  // second moment and mode amplitude at t = 0
   std::vector<std::pair<double, double>> mode_log;  // (t, log A) while A > 0.05 A0
+  bool mode_fit_open = true;
   std::int64_t total_iterations = 0, total_evaluations = 0, total_rejected = 0, total_halvings = 0;
   double total_step_seconds = 0.0, total_solver_seconds = 0.0, total_list_seconds = 0.0;
   StepRecord prev;
@@ -758,7 +764,12 @@ RunResult Simulation::run(const RunOptions& options) {
       }
       const double ra = A0 * analytic::cosine_mode_decay(c.physics.kappa, k, t);
       rv = {A, ra, ref_stats[0].add(t, A, ra)};
-      if (A > 0.05 * std::abs(A0) && A0 > 0.0) mode_log.emplace_back(t, std::log(A));
+      // Fit window: from t = 0 until a(t) first falls to 5% of a(0) (later
+      // rows are noise that may come back above it).
+      if (mode_fit_open && A > 0.05 * std::abs(A0) && A0 > 0.0)
+        mode_log.emplace_back(t, std::log(A));
+      else
+        mode_fit_open = false;
     }
     if (!rv.empty()) r.reference = ref == "crank_sphere" || ref == "crank_slab" ? rv[0] : rv[1];
     r.wall_seconds = wall();

@@ -311,6 +311,7 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
   };
 
   auto finish = [&](std::size_t i, const Running& r, pid_t waited, int wstatus, bool timed_out) {
+    const int saved_errno = errno;
     SweepRow& row = result.rows[i];
     row.wall_seconds = std::chrono::duration<double>(Clock::now() - r.start).count();
     const std::filesystem::path dir = o.out_dir / row.dir;
@@ -322,13 +323,14 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
       }
     }
     if (timed_out) {
+      row.summary = nullptr;  // it still says "running": no figures
       row.status = "timeout";
       row.exit_code = -1;
       row.error = fmt::format("killed after the --timeout of {} s", o.timeout_seconds);
     } else if (waited < 0) {
       row.status = "crashed";
       row.exit_code = -1;
-      row.error = fmt::format("waitpid failed: {}", std::strerror(errno));
+      row.error = fmt::format("waitpid failed: {}", std::strerror(saved_errno));
     } else if (WIFEXITED(wstatus)) {
       row.exit_code = WEXITSTATUS(wstatus);
       row.status = row.exit_code == 0 ? "completed" : row.exit_code == 2 ? "invalid" : "failed";
@@ -352,6 +354,20 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
   };
 
   std::map<std::size_t, Running> running;
+  // If anything below throws (a run cannot be started, runs.csv cannot be
+  // written), no child is left running or unreaped.
+  struct Reaper {
+    std::map<std::size_t, Running>& r;
+    ~Reaper() {
+      for (auto& [i, run] : r) {
+        ::kill(run.pid, SIGKILL);
+        int st = 0;
+        ::waitpid(run.pid, &st, 0);
+      }
+    }
+  } reaper{running};
+  // Children must stay waitable even if SIGCHLD was inherited as ignored.
+  ::signal(SIGCHLD, SIG_DFL);
   std::size_t next = 0;
   while (next < grid.size() || !running.empty()) {
     while (next < grid.size() && running.size() < static_cast<std::size_t>(o.jobs)) {
@@ -362,6 +378,7 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
     for (auto it = running.begin(); it != running.end();) {
       int wstatus = 0;
       const pid_t w = ::waitpid(it->second.pid, &wstatus, WNOHANG);
+      const int wait_errno = errno;
       const bool timed_out =
           w == 0 && o.timeout_seconds > 0.0 &&
           std::chrono::duration<double>(Clock::now() - it->second.start).count() > o.timeout_seconds;
@@ -370,6 +387,7 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
         ::waitpid(it->second.pid, &wstatus, 0);
       }
       if (w != 0 || timed_out) {
+        errno = wait_errno;
         finish(it->first, it->second, w, wstatus, timed_out);
         it = running.erase(it);
         any = true;
