@@ -35,6 +35,18 @@ PairSet brute_pairs(const std::vector<Vec3>& x, double radius, const Periodicity
   return out;
 }
 
+// The list's definition, by brute force: |x_p - x_q| <= max(R_p, R_q).
+PairSet brute_pairs(const NeighborList& nl, const std::vector<Vec3>& x, const std::vector<double>& s,
+                    const Periodicity& per) {
+  PairSet out;
+  for (std::uint32_t p = 0; p < x.size(); ++p)
+    for (std::uint32_t q = 0; q < x.size(); ++q)
+      if (p != q &&
+          per.displacement(x[p], x[q]).norm() <= std::max(nl.particle_radius(s[p]), nl.particle_radius(s[q])))
+        out.emplace(p, q);
+  return out;
+}
+
 }  // namespace
 
 TEST(NeighborList, CutoffComesFromKernelTolerance) {
@@ -49,10 +61,10 @@ TEST(NeighborList, MatchesBruteForceOnRandomClouds) {
     ParticleSet ps = random_cloud(dim, 1500, -1.0, 1.0, 0.04, 0.4, 1.0, 100 + dim);
     NeighborList nl;
     nl.build(ps.positions(), ps.widths(), Periodicity::none(dim));
-    const PairSet expected = brute_pairs(ps.positions(), nl.list_radius(), Periodicity::none(dim));
+    const PairSet expected = brute_pairs(nl, ps.positions(), ps.widths(), Periodicity::none(dim));
     ASSERT_GT(expected.size(), ps.size()) << "cloud too sparse for a meaningful test";
     EXPECT_EQ(list_pairs(nl), expected) << "d=" << dim;
-    // The radius is that of the widest blob plus the skin.
+    // The largest radius is that of the widest blob plus the skin.
     double smax = *std::max_element(ps.widths().begin(), ps.widths().end());
     EXPECT_NEAR(nl.cutoff(), cutoff_radius(smax, 1e-8), 1e-15);
   }
@@ -65,7 +77,7 @@ TEST(NeighborList, PeriodicImagesMatchBruteForce) {
     const Periodicity per = Periodicity::from_domain(*box);
     NeighborList nl;
     nl.build(ps.positions(), ps.widths(), per);
-    const PairSet expected = brute_pairs(ps.positions(), nl.list_radius(), per);
+    const PairSet expected = brute_pairs(nl, ps.positions(), ps.widths(), per);
     EXPECT_EQ(list_pairs(nl), expected) << "d=" << dim;
     // Some pairs must actually cross the box edge.
     int crossing = 0;
@@ -107,9 +119,20 @@ TEST(NeighborList, StaysValidForMovesWithinHalfTheSkin) {
     p += (0.49 * nl.skin() * rng.uniform()) * dir.normalized();
   }
   EXPECT_FALSE(nl.needs_rebuild(x, ps.widths()));
-  // Every pair now inside the cut-off is still in the list.
-  const PairSet inside = brute_pairs(x, nl.cutoff(), Periodicity::none(dim));
-  for (const auto& pq : inside) EXPECT_TRUE(built.count(pq)) << pq.first << "," << pq.second;
+  // Every pair now inside its cut-off is still in the list.
+  const auto& s0 = ps.widths();
+  const double tol = nl.options().kernel_tolerance;
+  for (std::uint32_t p = 0; p < x.size(); ++p)
+    for (std::uint32_t q = 0; q < x.size(); ++q)
+      if (p != q && (x[p] - x[q]).norm() <= cutoff_radius(std::max(s0[p], s0[q]), tol)) {
+        EXPECT_TRUE(built.count({p, q})) << p << "," << q;
+      }
+  // Widening blobs by less than what is left of the skin keeps the list valid, too.
+  {
+    auto s = ps.widths();
+    for (auto& v : s) v += 0.01 * nl.skin() / std::sqrt(std::log(1.0 / tol));
+    EXPECT_FALSE(nl.needs_rebuild(x, s));
+  }
   // Moving one particle by more than half the skin asks for a rebuild.
   x = ps.positions();
   x[17] += Vec3(0.51 * nl.skin(), 0.0, 0.0);
@@ -133,7 +156,7 @@ TEST(NeighborList, RebuildAfterInsertionsAndDeletionsMatchesBruteForce) {
   ps.remove_indices(gone);
   EXPECT_TRUE(nl.needs_rebuild(ps.positions(), ps.widths()));
   nl.build(ps.positions(), ps.widths(), Periodicity::none(dim));
-  EXPECT_EQ(list_pairs(nl), brute_pairs(ps.positions(), nl.list_radius(), Periodicity::none(dim)));
+  EXPECT_EQ(list_pairs(nl), brute_pairs(nl, ps.positions(), ps.widths(), Periodicity::none(dim)));
   EXPECT_EQ(nl.build_count(), 2);
 }
 
@@ -186,12 +209,54 @@ TEST(NeighborList, FarFlungParticlesKeepTheGridSmallAndTheListExact) {
   ps.positions()[7] = Vec3(-1e12, 5e11, 1e13);
   NeighborList nl;
   nl.build(ps.positions(), ps.widths(), Periodicity::none(3));
-  EXPECT_EQ(list_pairs(nl), brute_pairs(ps.positions(), nl.list_radius(), Periodicity::none(3)));
+  EXPECT_EQ(list_pairs(nl), brute_pairs(nl, ps.positions(), ps.widths(), Periodicity::none(3)));
   ps.positions()[5] = Vec3(std::nan(""), 0.0, 0.0);
   try {
     nl.build(ps.positions(), ps.widths(), Periodicity::none(3));
     ADD_FAILURE() << "accepted a NaN position";
   } catch (const std::runtime_error& e) {
     EXPECT_NE(std::string(e.what()).find("particle 5"), std::string::npos) << e.what();
+  }
+}
+
+// Optimised widths leave a few blobs several times wider than the rest
+// (study 2). The list holds each pair within the wider blob's radius, not
+// every pair within the widest blob's: equal to brute force, symmetric, and
+// far shorter than the widest radius would make it. Periodic boxes too, where
+// wide blobs' searches visit every cell along an axis.
+TEST(NeighborList, PerPairRadiusWithAFewWideBlobsMatchesBruteForce) {
+  for (int dim = 1; dim <= 3; ++dim) {
+    for (bool periodic : {false, true}) {
+      ParticleSet ps = random_cloud(dim, 1500, 0.0, 2.0, 0.03, 0.2, 1.0, 500 + dim);
+      Rng rng(31 + dim);
+      for (std::size_t p = 0; p < ps.size(); p += 37) ps.widths()[p] *= rng.uniform(3.0, 6.0);
+      DomainPtr box = make_periodic_box(dim, Vec3::Zero(), Vec3::Constant(2.0));
+      const Periodicity per = periodic ? Periodicity::from_domain(*box) : Periodicity::none(dim);
+      NeighborList nl;
+      nl.build(ps.positions(), ps.widths(), per);
+      const PairSet got = list_pairs(nl);
+      EXPECT_EQ(got.size(), nl.num_entries()) << "duplicate entries, d=" << dim;
+      EXPECT_EQ(got, brute_pairs(nl, ps.positions(), ps.widths(), per)) << "d=" << dim << " periodic=" << periodic;
+      for (const auto& [p, q] : got) EXPECT_TRUE(got.count({q, p})) << "asymmetric " << p << "," << q;
+      const PairSet widest = brute_pairs(ps.positions(), nl.list_radius(), per);
+      EXPECT_LT(2 * got.size(), widest.size()) << "d=" << dim;
+    }
+  }
+}
+// An optimiser moves particles across the edge of a periodic box and the list
+// may be rebuilt before anything wraps them: unwrapped positions must give
+// the same list as wrapped ones (many cells, so the exact-shift path runs).
+TEST(NeighborList, UnwrappedPositionsInAPeriodicBoxMatchBruteForce) {
+  for (int dim = 1; dim <= 3; ++dim) {
+    DomainPtr box = make_periodic_box(dim, Vec3::Zero(), Vec3::Constant(2.0));
+    ParticleSet ps = random_cloud(dim, 1200, -0.4, 2.4, 0.04, 0.2, 1.0, 600 + dim);
+    const Periodicity per = Periodicity::from_domain(*box);
+    NeighborList nl;
+    nl.build(ps.positions(), ps.widths(), per);
+    const PairSet got = list_pairs(nl);
+    EXPECT_EQ(got, brute_pairs(nl, ps.positions(), ps.widths(), per)) << "d=" << dim;
+    int outside = 0;
+    for (const auto& y : ps.positions()) outside += (y.head(dim).array() < 0.0).any() || (y.head(dim).array() >= 2.0).any();
+    EXPECT_GT(outside, 100);
   }
 }
