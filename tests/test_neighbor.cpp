@@ -137,6 +137,16 @@ TEST(NeighborList, StaysValidForMovesWithinHalfTheSkin) {
   x = ps.positions();
   x[17] += Vec3(0.51 * nl.skin(), 0.0, 0.0);
   EXPECT_TRUE(nl.needs_rebuild(x, ps.widths()));
+  // With per-pair radii a narrow blob that grows matters too, even while it
+  // stays narrower than the widest: its cut-off growth alone uses up the skin.
+  {
+    auto s = ps.widths();
+    const std::size_t narrow = static_cast<std::size_t>(std::min_element(s.begin(), s.end()) - s.begin());
+    const double smax = *std::max_element(s.begin(), s.end());
+    s[narrow] += 1.01 * nl.skin() / std::sqrt(std::log(1.0 / tol));
+    ASSERT_LT(s[narrow], smax);
+    EXPECT_TRUE(nl.needs_rebuild(ps.positions(), s));
+  }
   // So does widening a blob enough to grow the cut-off past the skin.
   auto s = ps.widths();
   x = ps.positions();
@@ -243,6 +253,7 @@ TEST(NeighborList, PerPairRadiusWithAFewWideBlobsMatchesBruteForce) {
     }
   }
 }
+
 // An optimiser moves particles across the edge of a periodic box and the list
 // may be rebuilt before anything wraps them: unwrapped positions must give
 // the same list as wrapped ones (many cells, so the exact-shift path runs).
