@@ -75,7 +75,7 @@ StepSummary ExplicitStepper::step(ParticleSet& particles, double dt) {
   const int builds_before = functional_.list().build_count();
   const double list_seconds_before = functional_.list().build_seconds();
   const std::uint64_t pairs_before = functional_.entropy().pair_evaluations();
-  functional_.list().build(x0, s, functional_.periodicity());  // particles may have moved in memory
+  functional_.rebuild_list(x0, s);  // particles may have moved in memory
   summary.parts_before = functional_.evaluate(x0, s, nullptr);
   summary.f_before = summary.parts_before.total();
 

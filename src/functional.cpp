@@ -2,6 +2,7 @@
 
 #include <omp.h>
 
+#include <algorithm>
 #include <cmath>
 
 #include "pair_kernels.hpp"
@@ -82,18 +83,19 @@ void EntropyTerm::prepare(const std::vector<Vec3>& x, const std::vector<double>&
   }
 }
 
-double EntropyTerm::value_from_density(const std::vector<double>& m) const {
+double EntropyTerm::value_from_density(const std::vector<double>& m, std::size_t rows) const {
   // Summed in index order: independent of the thread count.
   double value = 0.0;
-  for (std::size_t p = 0; p < m.size(); ++p) value += m[p] * std::log(rho_[p] / rho_ref_);
+  for (std::size_t p = 0; p < rows; ++p) value += m[p] * std::log(rho_[p] / rho_ref_);
   return kappa_ * value;
 }
 
 double EntropyTerm::evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m,
-                             const NeighborList& list, Gradient* grad) {
+                             const NeighborList& list, Gradient* grad, std::size_t rows) {
   require(list.built() && list.size() == x.size(), "neighbour list", static_cast<double>(list.size()),
           "must be built for the current particles");
   const std::size_t n = x.size();
+  const std::size_t nr = std::min(rows, n);  // blobs with an entropy term; the rest are images
   prepare(x, s, m);
   px_.resize(n);
   py_.resize(n);
@@ -122,20 +124,25 @@ double EntropyTerm::evaluate(const std::vector<Vec3>& x, const std::vector<doubl
   t4_.resize(n);
   // Rows are split into fixed chunks; each row writes only its own outputs.
   constexpr std::size_t kChunk = 256;
-  const std::size_t nchunks = (n + kChunk - 1) / kChunk;
+  const std::size_t nchunks_rho = (nr + kChunk - 1) / kChunk;
 #pragma omp parallel for schedule(dynamic, 4)
-  for (std::size_t c = 0; c < nchunks; ++c)
-    detail::density_rows(c * kChunk, std::min(n, (c + 1) * kChunk), off, idx, b, mi, rho_.data(), t0_.data(),
+  for (std::size_t c = 0; c < nchunks_rho; ++c)
+    detail::density_rows(c * kChunk, std::min(nr, (c + 1) * kChunk), off, idx, b, mi, rho_.data(), t0_.data(),
                          t1_.data(), t2_.data());
-  for (std::size_t p = 0; p < n; ++p) grad_rho_[p] = Vec3(t0_[p], t1_[p], t2_[p]);
-  pair_evals_ += list.num_entries();
-  const double value = value_from_density(m);
+  for (std::size_t p = 0; p < nr; ++p) grad_rho_[p] = Vec3(t0_[p], t1_[p], t2_[p]);
+  for (std::size_t p = nr; p < n; ++p) {  // images: no density of their own is needed
+    rho_[p] = 0.0;
+    grad_rho_[p].setZero();
+  }
+  pair_evals_ += off[nr] - off[0];
+  const double value = value_from_density(m, nr);
   if (!grad) return value;
 
   a_.resize(n);
-  for (std::size_t p = 0; p < n; ++p) a_[p] = m[p] / rho_[p];
+  for (std::size_t p = 0; p < n; ++p) a_[p] = p < nr ? m[p] / rho_[p] : 0.0;
   std::vector<double>& wsum = t3_;
   std::vector<double>& wr2 = t4_;
+  const std::size_t nchunks = (n + kChunk - 1) / kChunk;
 #pragma omp parallel for schedule(dynamic, 4)
   for (std::size_t c = 0; c < nchunks; ++c)
     detail::gather_rows(c * kChunk, std::min(n, (c + 1) * kChunk), off, idx, b, mi, a_.data(), t0_.data(),
@@ -150,11 +157,16 @@ double EntropyTerm::evaluate(const std::vector<Vec3>& x, const std::vector<doubl
 }
 
 double EntropyTerm::evaluate_all_pairs(const std::vector<Vec3>& x, const std::vector<double>& s,
-                                       const std::vector<double>& m, const Periodicity& per, Gradient* grad) {
+                                       const std::vector<double>& m, const Periodicity& per, Gradient* grad,
+                                       std::size_t rows) {
   // Plain O(n^2) loops with std::exp: the reference the accelerated path is tested against.
   const std::size_t n = x.size();
+  const std::size_t nr = std::min(rows, n);
   prepare(x, s, m);
   for (std::size_t p = 0; p < n; ++p) {
+    rho_[p] = 0.0;
+    grad_rho_[p].setZero();
+    if (p >= nr) continue;
     double rho = 0.0;
     Vec3 g = Vec3::Zero();
     for (std::size_t q = 0; q < n; ++q) {
@@ -166,25 +178,25 @@ double EntropyTerm::evaluate_all_pairs(const std::vector<Vec3>& x, const std::ve
     rho_[p] = rho;
     grad_rho_[p] = g;
   }
-  pair_evals_ += n * n;
-  const double value = value_from_density(m);
+  pair_evals_ += nr * n;
+  const double value = value_from_density(m, nr);
   if (!grad) return value;
   const bool widths = grad->s.size() == n;
   const double half_d = 0.5 * dim_;
   for (std::size_t r = 0; r < n; ++r) {
     Vec3 gathered = Vec3::Zero();
     double wsum = 0.0, wr2 = 0.0;
-    for (std::size_t p = 0; p < n; ++p) {
+    for (std::size_t p = 0; p < nr; ++p) {
       const Vec3 d = per.displacement(x[p], x[r]);
       const double w = m[p] / rho_[p] * mc_[r] * std::exp(-beta_[r] * d.squaredNorm());
       gathered += w * d;
       wsum += w;
       wr2 += w * d.squaredNorm();
     }
-    assemble(kappa_, half_d, m[r] / rho_[r], beta_[r], grad_rho_[r], gathered, wsum, wr2, grad->x[r],
+    assemble(kappa_, half_d, r < nr ? m[r] / rho_[r] : 0.0, beta_[r], grad_rho_[r], gathered, wsum, wr2, grad->x[r],
              widths ? &grad->s[r] : nullptr);
   }
-  pair_evals_ += n * n;
+  pair_evals_ += nr * n;
   return value;
 }
 
@@ -253,46 +265,130 @@ void add_into(Gradient& acc, const Gradient& g) {
 }
 }  // namespace
 
-FunctionalParts Functional::evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad) {
+void Functional::set_images(WallImages images) {
+  require(!images.active() || !per_.any(), "images", "walls", "cannot be combined with a periodic box");
+  images_ = std::move(images);
+  images_built_for_ = static_cast<std::size_t>(-1);  // the next evaluation rebuilds
+}
+
+void Functional::extend(const std::vector<Vec3>& x, const std::vector<double>& s) {
+  const std::size_t n = x.size();
+  images_.positions(x, grad_image_);  // grad_image_ as scratch for the image positions
+  const auto& src = images_.sources();
+  const std::size_t ni = src.size();
+  x_ext_.resize(n + ni);
+  s_ext_.resize(n + ni);
+  m_ext_.resize(n + ni);
+  std::copy(x.begin(), x.end(), x_ext_.begin());
+  std::copy(s.begin(), s.end(), s_ext_.begin());
+  std::copy(m_.begin(), m_.end(), m_ext_.begin());
+  for (std::size_t i = 0; i < ni; ++i) {
+    x_ext_[n + i] = grad_image_[i];
+    s_ext_[n + i] = s[src[i]];
+    m_ext_[n + i] = m_[src[i]];
+  }
+}
+
+void Functional::rebuild_list(const std::vector<Vec3>& x, const std::vector<double>& s) {
+  if (!images_.active()) {
+    list_.build(x, s, per_);
+    return;
+  }
   require(x.size() == m_.size() && s.size() == m_.size(), "configuration size", static_cast<double>(x.size()),
           "must match the reference set by set_reference()");
-  if (list_.needs_rebuild(x, s)) list_.build(x, s, per_);
+  // Each particle is mirrored across the walls within its list radius, with
+  // the skin the list is about to use (NeighborList::build's rule).
+  const NeighborOptions& no = options_.neighbor;
+  double s_min = s.empty() ? 1.0 : *std::min_element(s.begin(), s.end());
+  const double skin = no.skin >= 0.0 ? no.skin : no.skin_factor * s_min;
+  std::vector<double> reach(x.size());
+  for (std::size_t p = 0; p < x.size(); ++p) reach[p] = cutoff_radius(s[p], no.kernel_tolerance) + skin;
+  images_.select(x, reach);
+  extend(x, s);
+  list_.build(x_ext_, s_ext_, per_);
+  images_built_for_ = x.size();
+}
+
+void Functional::ensure_list(const std::vector<Vec3>& x, const std::vector<double>& s) {
+  if (!images_.active()) {
+    if (list_.needs_rebuild(x, s)) list_.build(x, s, per_);
+    return;
+  }
+  if (images_built_for_ == x.size() && list_.built()) {
+    extend(x, s);
+    if (!list_.needs_rebuild(x_ext_, s_ext_)) return;
+  }
+  rebuild_list(x, s);
+}
+
+FunctionalParts Functional::evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad) {
+  return evaluate_impl(x, s, grad, false);
+}
+
+FunctionalParts Functional::evaluate_all_pairs(const std::vector<Vec3>& x, const std::vector<double>& s,
+                                               Gradient* grad) {
+  return evaluate_impl(x, s, grad, true);
+}
+
+FunctionalParts Functional::evaluate_impl(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad,
+                                          bool all_pairs) {
+  require(x.size() == m_.size() && s.size() == m_.size(), "configuration size", static_cast<double>(x.size()),
+          "must match the reference set by set_reference()");
+  const std::size_t n = x.size();
+  const bool images = images_.active();
+  if (!all_pairs) {
+    ensure_list(x, s);
+  } else if (images) {
+    // The same image set as a list build would choose, summed over all pairs.
+    const NeighborOptions& no = options_.neighbor;
+    const double s_min = s.empty() ? 1.0 : *std::min_element(s.begin(), s.end());
+    const double skin = no.skin >= 0.0 ? no.skin : no.skin_factor * s_min;
+    std::vector<double> reach(n);
+    for (std::size_t p = 0; p < n; ++p) reach[p] = cutoff_radius(s[p], no.kernel_tolerance) + skin;
+    images_.select(x, reach);
+    images_built_for_ = static_cast<std::size_t>(-1);  // the list no longer matches the selection
+    extend(x, s);
+  }
   FunctionalParts parts;
   const bool widths = grad && options_.optimise_widths;
+  const std::size_t n_ext = images ? x_ext_.size() : n;
   if (grad) {
-    grad->resize(x.size(), widths);
-    scratch_.resize(x.size(), widths);
+    grad->resize(n, widths);
+    scratch_.resize(n_ext, widths);
   }
   parts.transport = transport_.evaluate(x, s, m_, x_ref_, s_ref_, grad);
-  parts.entropy = entropy_.evaluate(x, s, m_, list_, grad ? &scratch_ : nullptr);
-  if (grad) add_into(*grad, scratch_);
-  if (grad) scratch_.s.clear();  // the barrier has no width gradient
+  Gradient* g = grad ? &scratch_ : nullptr;
+  if (!images)
+    parts.entropy = all_pairs ? entropy_.evaluate_all_pairs(x, s, m_, per_, g) : entropy_.evaluate(x, s, m_, list_, g);
+  else
+    parts.entropy = all_pairs ? entropy_.evaluate_all_pairs(x_ext_, s_ext_, m_ext_, per_, g, n)
+                              : entropy_.evaluate(x_ext_, s_ext_, m_ext_, list_, g, n);
+  if (grad) {
+    for (std::size_t p = 0; p < n; ++p) grad->x[p] += scratch_.x[p];
+    if (widths)
+      for (std::size_t p = 0; p < n; ++p) grad->s[p] += scratch_.s[p];
+    if (images) {
+      // Images move with their sources (chain rule through the reflection) and share their widths.
+      const auto& src = images_.sources();
+      grad_image_.assign(scratch_.x.begin() + static_cast<std::ptrdiff_t>(n), scratch_.x.end());
+      images_.pull_back(x, grad_image_, grad->x);
+      if (widths)
+        for (std::size_t i = 0; i < src.size(); ++i) grad->s[src[i]] += scratch_.s[n + i];
+    }
+    scratch_.resize(n, false);
+    scratch_.s.clear();  // the barrier has no width gradient
+  }
   parts.barrier = barrier_.evaluate(x, m_, grad ? &scratch_ : nullptr);
   if (grad) add_into(*grad, scratch_);
   return parts;
 }
 
-FunctionalParts Functional::evaluate_all_pairs(const std::vector<Vec3>& x, const std::vector<double>& s,
-                                               Gradient* grad) {
-  FunctionalParts parts;
-  const bool widths = grad && options_.optimise_widths;
-  Gradient g2;
-  if (grad) {
-    grad->resize(x.size(), widths);
-    g2.resize(x.size(), widths);
-  }
-  parts.transport = transport_.evaluate(x, s, m_, x_ref_, s_ref_, grad);
-  parts.entropy = entropy_.evaluate_all_pairs(x, s, m_, per_, grad ? &g2 : nullptr);
-  if (grad) add_into(*grad, g2);
-  if (grad) g2.s.clear();
-  parts.barrier = barrier_.evaluate(x, m_, grad ? &g2 : nullptr);
-  if (grad) add_into(*grad, g2);
-  return parts;
-}
-
 void Functional::explicit_velocity(const std::vector<Vec3>& x, const std::vector<double>& s, std::vector<Vec3>& v) {
-  if (list_.needs_rebuild(x, s)) list_.build(x, s, per_);
-  entropy_.evaluate(x, s, m_, list_, nullptr);
+  ensure_list(x, s);
+  if (images_.active())
+    entropy_.evaluate(x_ext_, s_ext_, m_ext_, list_, nullptr, x.size());
+  else
+    entropy_.evaluate(x, s, m_, list_, nullptr);
   const auto& rho = entropy_.density();
   const auto& grho = entropy_.density_gradient();
   v.resize(x.size());

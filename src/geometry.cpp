@@ -1,5 +1,7 @@
 #include "otfp/geometry.hpp"
 
+#include "otfp/images.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -43,6 +45,11 @@ void check_patch(const Domain& d, int patch) {
 
 void check_thickness(double b) {
   require(std::isfinite(b) && b > 0.0, "layer half-thickness b", b, "must be finite and > 0");
+}
+
+void check_extension(const Domain& d, const std::vector<int>& patches, double w) {
+  require(std::isfinite(w) && w > 0.0, "extension thickness w", w, "must be finite and > 0");
+  for (int p : patches) check_patch(d, p);
 }
 
 double unit_ball_volume(int dim) {
@@ -124,6 +131,18 @@ double Domain::monte_carlo_volume(const Aabb& box, int dim, int samples, Pred pr
   return box_measure(box, dim) * static_cast<double>(hits) / static_cast<double>(samples);
 }
 
+std::shared_ptr<const MirrorWall> Domain::patch_wall(int patch) const {
+  check_patch(*this, patch);
+  return nullptr;
+}
+
+DomainPtr Domain::extended(const std::vector<int>& patches, double w) const {
+  require(patches.empty(), "extended patch", patches.empty() ? "" : patch_name(patches.front()),
+          "this domain cannot be extended over its patches");
+  (void)w;
+  return nullptr;
+}
+
 std::string Domain::patch_name(int patch) const {
   check_patch(*this, patch);
   return "patch" + std::to_string(patch);
@@ -198,6 +217,17 @@ class Ball final : public Domain {
     check_dim(dim);
     check_point(center, "ball center");
     require(std::isfinite(radius) && radius > 0.0, "ball radius", radius, "must be finite and > 0");
+    wall_ = make_sphere_wall(dim_, c_, r_);
+  }
+
+  std::shared_ptr<const MirrorWall> patch_wall(int patch) const override {
+    check_patch(*this, patch);
+    return wall_;
+  }
+
+  DomainPtr extended(const std::vector<int>& patches, double w) const override {
+    check_extension(*this, patches, w);
+    return make_ball(dim_, c_, patches.empty() ? r_ : r_ + w);
   }
 
   double radius() const { return r_; }
@@ -235,6 +265,15 @@ class Ball final : public Domain {
 
   Aabb bounding_box() const override { return inflate(Aabb{c_, c_}, dim_, r_); }
 
+  std::optional<DomainShape> shape() const override {
+    DomainShape sh;
+    sh.kind = DomainShape::Kind::Ball;
+    sh.dim = dim_;
+    sh.center = c_;
+    sh.radius = r_;
+    return sh;
+  }
+
   // Spherical shell between the inner and outer radius of the part.
   double layer_cell_volume(int patch, double b, LayerPart part, int /*samples*/) const override {
     check_patch(*this, patch);
@@ -248,6 +287,7 @@ class Ball final : public Domain {
   int dim_;
   Vec3 c_;
   double r_;
+  std::shared_ptr<const MirrorWall> wall_;
 };
 
 // ---------------------------------------------------------------------------
@@ -263,6 +303,23 @@ class Box final : public Domain {
     for (int k = 0; k < dim; ++k)
       require(lo[k] < hi[k], std::string("box hi.") + kAxis[k], hi[k],
               "must be > lo." + std::string(kAxis[k]) + " = " + std::to_string(lo[k]));
+    for (int f = 0; f < 2 * dim_; ++f) {
+      const int k = f / 2;
+      const Vec3 e = Vec3::Unit(k);
+      walls_.push_back(f % 2 == 0 ? make_plane_wall(lo_, -e) : make_plane_wall(hi_, e));
+    }
+  }
+
+  std::shared_ptr<const MirrorWall> patch_wall(int patch) const override {
+    check_patch(*this, patch);
+    return walls_[static_cast<std::size_t>(patch)];
+  }
+
+  DomainPtr extended(const std::vector<int>& patches, double w) const override {
+    check_extension(*this, patches, w);
+    Vec3 lo = lo_, hi = hi_;
+    for (int p : patches) (p % 2 == 0 ? lo : hi)[p / 2] += (p % 2 == 0 ? -w : w);
+    return make_box(dim_, lo, hi);
   }
 
   int dim() const override { return dim_; }
@@ -324,6 +381,15 @@ class Box final : public Domain {
 
   Aabb bounding_box() const override { return Aabb{lo_, hi_}; }
 
+  std::optional<DomainShape> shape() const override {
+    DomainShape sh;
+    sh.kind = DomainShape::Kind::Box;
+    sh.dim = dim_;
+    sh.lo = lo_;
+    sh.hi = hi_;
+    return sh;
+  }
+
   // The face inflated by b: every layer point is within b of its face.
   Aabb layer_bounding_box(int patch, double b) const override {
     Aabb box = Domain::layer_bounding_box(patch, b);
@@ -373,6 +439,7 @@ class Box final : public Domain {
  private:
   int dim_;
   Vec3 lo_, hi_;
+  std::vector<std::shared_ptr<const MirrorWall>> walls_;
 };
 
 // ---------------------------------------------------------------------------
@@ -393,6 +460,24 @@ class Cylinder final : public Domain {
       if (std::abs(u_[k]) < std::abs(u_[e])) e = k;
     const Vec3 ek = Vec3::Unit(e);
     perp_ = (ek - ek.dot(u_) * u_).normalized();
+    walls_ = {make_cylinder_wall(a_, u_, r_), make_plane_wall(a_, -u_), make_plane_wall(b_, u_)};
+  }
+
+  std::shared_ptr<const MirrorWall> patch_wall(int patch) const override {
+    check_patch(*this, patch);
+    return walls_[static_cast<std::size_t>(patch)];
+  }
+
+  DomainPtr extended(const std::vector<int>& patches, double w) const override {
+    check_extension(*this, patches, w);
+    Vec3 a = a_, b = b_;
+    double r = r_;
+    for (int p : patches) {
+      if (p == 0) r += w;
+      else if (p == 1) a -= w * u_;
+      else b += w * u_;
+    }
+    return make_cylinder(a, b, r);
   }
 
   int dim() const override { return 3; }
@@ -440,6 +525,16 @@ class Cylinder final : public Domain {
     check_patch(*this, patch);
     static const char* kNames[3] = {"lateral", "cap_a", "cap_b"};
     return kNames[patch];
+  }
+
+  std::optional<DomainShape> shape() const override {
+    DomainShape sh;
+    sh.kind = DomainShape::Kind::Cylinder;
+    sh.dim = 3;
+    sh.radius = r_;
+    sh.end_a = a_;
+    sh.end_b = b_;
+    return sh;
   }
 
   Aabb bounding_box() const override {
@@ -500,6 +595,7 @@ class Cylinder final : public Domain {
   double len_ = 0.0;
   Vec3 u_ = Vec3::UnitZ();
   Vec3 perp_ = Vec3::UnitX();
+  std::vector<std::shared_ptr<const MirrorWall>> walls_;
 };
 
 // ---------------------------------------------------------------------------
@@ -618,6 +714,26 @@ class SubPatchDomain final : public Domain {
   }
 
   Aabb bounding_box() const override { return base_->bounding_box(); }
+  // Sub-patches do not change Omega.
+  std::optional<DomainShape> shape() const override { return base_->shape(); }
+
+  // A sub-patch lies on its base patch's wall.
+  std::shared_ptr<const MirrorWall> patch_wall(int patch) const override {
+    check_patch(*this, patch);
+    return base_->patch_wall(patch < nb_ ? patch : subs_[static_cast<std::size_t>(patch - nb_)].base_patch);
+  }
+
+  // Only base patches that carry no sub-patch can move outward.
+  DomainPtr extended(const std::vector<int>& patches, double w) const override {
+    check_extension(*this, patches, w);
+    for (int p : patches) {
+      const bool carries = std::any_of(subs_.begin(), subs_.end(), [&](const SubPatch& s) { return s.base_patch == p; });
+      require(p < nb_ && !carries, "extended patch", patch_name(p),
+              "must be a whole patch of the base domain without sub-patches");
+    }
+    return make_with_subpatches(base_->extended(patches, w), subs_);
+  }
+
   bool is_periodic() const override { return base_->is_periodic(); }
   Vec3 period() const override { return base_->period(); }
   Vec3 wrap(const Vec3& x) const override { return base_->wrap(x); }

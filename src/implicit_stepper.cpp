@@ -153,7 +153,7 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   const int builds_before = functional_.list().build_count();
   const double list_seconds_before = functional_.list().build_seconds();
   const std::uint64_t pairs_before = functional_.entropy().pair_evaluations();
-  functional_.list().build(x, s, functional_.periodicity());  // particles may have been added or removed
+  functional_.rebuild_list(x, s);  // particles may have been added or removed
 
   const bool widths = options_.width_mode == WidthMode::PerParticle;
   StepObjective objective(functional_, external_, x, s, m, dt, widths);

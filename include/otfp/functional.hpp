@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "otfp/barrier.hpp"
+#include "otfp/images.hpp"
 #include "otfp/neighbor_list.hpp"
 #include "otfp/particles.hpp"
 
@@ -60,12 +61,15 @@ class EntropyTerm {
  public:
   EntropyTerm(int dim, double kappa, double rho_ref);
   // The neighbour list must be valid for (x, s). grad may be null; grad->s is
-  // filled only if it has the right size.
+  // filled only if it has the right size. Only the first `rows` blobs carry an
+  // entropy term (all if rows > size); the rest (image blobs) only add to rho,
+  // and their gradient is that of their position as a kernel centre (term 2).
   double evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m,
-                  const NeighborList& list, Gradient* grad);
+                  const NeighborList& list, Gradient* grad, std::size_t rows = static_cast<std::size_t>(-1));
   // The same with the plain O(n^2) sum over all pairs (reference; periodic via minimum image).
   double evaluate_all_pairs(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m,
-                            const Periodicity& periodicity, Gradient* grad);
+                            const Periodicity& periodicity, Gradient* grad,
+                            std::size_t rows = static_cast<std::size_t>(-1));
   // rho_p and grad rho(x_p) from the last evaluation.
   const std::vector<double>& density() const { return rho_; }
   const std::vector<Vec3>& density_gradient() const { return grad_rho_; }
@@ -76,7 +80,7 @@ class EntropyTerm {
 
  private:
   void prepare(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m);
-  double value_from_density(const std::vector<double>& m) const;
+  double value_from_density(const std::vector<double>& m, std::size_t rows) const;
   int dim_;
   double kappa_, rho_ref_;
   std::vector<double> rho_, beta_, mc_, a_, px_, py_, pz_, t0_, t1_, t2_, t3_, t4_;
@@ -120,6 +124,13 @@ class Functional {
   FunctionalParts evaluate_all_pairs(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad);
   // Explicit velocity of (27) plus barrier: v_r = -(kappa grad rho(x_r)/rho(x_r) + grad Psi(x_r)).
   void explicit_velocity(const std::vector<Vec3>& x, const std::vector<double>& s, std::vector<Vec3>& v);
+  // Builds the neighbour list for (x, s) now (and chooses the image blobs when walls are mirrored).
+  void rebuild_list(const std::vector<Vec3>& x, const std::vector<double>& s);
+
+  // Image blobs at no-flux walls (images.hpp): rho includes the images of the
+  // blobs near the walls; the list then covers particles and images.
+  void set_images(WallImages images);
+  const WallImages& images() const { return images_; }
 
   const FunctionalOptions& options() const { return options_; }
   void set_dt(double dt);
@@ -144,6 +155,16 @@ class Functional {
   std::vector<Vec3> x_ref_;
   std::vector<double> s_ref_, m_;
   Gradient scratch_;
+  // Image blobs: the extended arrays (particles first, then images) and the
+  // number of particles the list was built for.
+  WallImages images_;
+  std::vector<Vec3> x_ext_, grad_image_;
+  std::vector<double> s_ext_, m_ext_;
+  std::size_t images_built_for_ = 0;
+  void extend(const std::vector<Vec3>& x, const std::vector<double>& s);
+  void ensure_list(const std::vector<Vec3>& x, const std::vector<double>& s);
+  FunctionalParts evaluate_impl(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad,
+                                bool all_pairs);
 };
 
 }  // namespace otfp

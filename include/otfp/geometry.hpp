@@ -10,12 +10,15 @@
 // Sampling, membership and the barrier all go through query(), so a new domain
 // is one class that implements query(), volume(), patch areas and bounds.
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "otfp/types.hpp"
 
 namespace otfp {
+
+class MirrorWall;
 
 struct BoundaryQuery {
   double signed_distance = 0.0;   // < 0 inside
@@ -24,6 +27,19 @@ struct BoundaryQuery {
 };
 
 enum class LayerPart { Interior, Exterior, Whole };
+
+// Parameters of the primitive domains (make_box, make_ball, make_cylinder), for
+// closed-form integrals over Omega (otfp/mass_measure.hpp). Sub-patch domains
+// report their base's shape; periodic boxes, CSG and other domains none.
+struct DomainShape {
+  enum class Kind { Box, Ball, Cylinder };
+  Kind kind = Kind::Box;
+  int dim = 3;
+  Vec3 lo = Vec3::Zero(), hi = Vec3::Zero();        // Box
+  Vec3 center = Vec3::Zero();                       // Ball
+  double radius = 0.0;                              // Ball, Cylinder
+  Vec3 end_a = Vec3::Zero(), end_b = Vec3::Zero();  // Cylinder: axis from end_a to end_b
+};
 
 class Domain {
  public:
@@ -43,6 +59,8 @@ class Domain {
   virtual Vec3 period() const { return Vec3::Zero(); }
   // Maps a point back into the fundamental cell (identity if not periodic).
   virtual Vec3 wrap(const Vec3& x) const { return x; }
+  // The primitive shape and its parameters, if the domain is one (see DomainShape).
+  virtual std::optional<DomainShape> shape() const { return std::nullopt; }
 
   double signed_distance(const Vec3& x) const { return query(x).signed_distance; }
   Vec3 closest_point(const Vec3& x) const { return query(x).closest_point; }
@@ -52,6 +70,15 @@ class Domain {
 
   // Membership of x in the layer cell of patch l with half-thickness b.
   bool in_layer_cell(const Vec3& x, int patch, double b, LayerPart part) const;
+
+  // The smooth wall surface that patch l lies on, for image blobs
+  // (images.hpp); patches on one surface share one wall object. Null where
+  // the domain cannot say (CSG): such walls keep only the barrier.
+  virtual std::shared_ptr<const MirrorWall> patch_wall(int patch) const;
+  // Omega extended outward by w over the given patches (the reservoir band
+  // of a Dirichlet patch), with the same patch ids. Throws InvalidArgument
+  // naming the patch where the domain cannot extend it.
+  virtual std::shared_ptr<const Domain> extended(const std::vector<int>& patches, double w) const;
 
   // Uniform sample of Omega (rejection from bounding_box()).
   virtual Vec3 sample_interior(Rng& rng) const;

@@ -1,0 +1,182 @@
+#include "otfp/images.hpp"
+
+#include "otfp/geometry.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+namespace otfp {
+
+namespace {
+
+class PlaneWall final : public MirrorWall {
+ public:
+  PlaneWall(const Vec3& point, const Vec3& normal) : p_(point), n_(normal.normalized()) {}
+  double distance(const Vec3& x) const override { return (x - p_).dot(n_); }
+  // y = x - 2 ((x - p) . n) n; J = I - 2 n n^T.
+  Vec3 reflect(const Vec3& x, Mat3* jac) const override {
+    if (jac) *jac = Mat3::Identity() - 2.0 * n_ * n_.transpose();
+    return x - 2.0 * distance(x) * n_;
+  }
+
+ private:
+  Vec3 p_, n_;
+};
+
+// Sphere and cylinder side share y = x + 2 (R - r) n with r = |q|, n = q / r,
+// q the offset from the centre (or from the axis, tangential part removed by P).
+// J = I - 2 n n^T + 2 (R - r) / r (P - n n^T), P = I (sphere) or I - u u^T (cylinder).
+class RoundWall final : public MirrorWall {
+ public:
+  RoundWall(int dim, const Vec3& c, double radius, const Vec3& axis, bool cylinder)
+      : dim_(dim), c_(c), r_(radius), u_(axis.normalized()), cylinder_(cylinder) {
+    for (int k = dim_; k < 3; ++k) c_[k] = 0.0;
+  }
+  double distance(const Vec3& x) const override { return offset(x).norm() - r_; }
+  Vec3 reflect(const Vec3& x, Mat3* jac) const override {
+    const Vec3 q = offset(x);
+    const double r = q.norm();
+    // At the centre (axis) the normal is undefined; such a point is a radius
+    // away from the wall and never within reach of it unless the reach exceeds R.
+    const Vec3 n = r > 0.0 ? Vec3(q / r) : Vec3(cylinder_ ? any_normal() : Vec3::UnitX());
+    if (jac) {
+      Mat3 proj = Mat3::Identity();
+      if (cylinder_) proj -= u_ * u_.transpose();
+      for (int k = dim_; k < 3; ++k) proj(k, k) = 0.0;  // unused axes stay zero
+      const Mat3 nn = n * n.transpose();
+      *jac = Mat3::Identity() - 2.0 * nn + (r > 0.0 ? 2.0 * (r_ - r) / r : 0.0) * (proj - nn);
+    }
+    return x + 2.0 * (r_ - r) * n;
+  }
+
+ private:
+  Vec3 offset(const Vec3& x) const {
+    Vec3 q = x - c_;
+    for (int k = dim_; k < 3; ++k) q[k] = 0.0;
+    if (cylinder_) q -= q.dot(u_) * u_;
+    return q;
+  }
+  Vec3 any_normal() const {
+    int e = 0;
+    for (int k = 1; k < 3; ++k)
+      if (std::abs(u_[k]) < std::abs(u_[e])) e = k;
+    const Vec3 ek = Vec3::Unit(e);
+    return (ek - ek.dot(u_) * u_).normalized();
+  }
+  int dim_;
+  Vec3 c_;
+  double r_;
+  Vec3 u_;
+  bool cylinder_;
+};
+
+}  // namespace
+
+MirrorWallPtr make_plane_wall(const Vec3& point, const Vec3& outward_normal) {
+  require(point.allFinite(), "plane wall point", point.norm(), "must be finite");
+  require(outward_normal.allFinite() && outward_normal.norm() > 0.0, "plane wall normal", outward_normal.norm(),
+          "must be finite and nonzero");
+  return std::make_shared<PlaneWall>(point, outward_normal);
+}
+
+MirrorWallPtr make_sphere_wall(int dim, const Vec3& center, double radius) {
+  require(dim >= 1 && dim <= 3, "dim", dim, "must be 1, 2 or 3");
+  require(center.allFinite(), "sphere wall center", center.norm(), "must be finite");
+  require(std::isfinite(radius) && radius > 0.0, "sphere wall radius", radius, "must be finite and > 0");
+  return std::make_shared<RoundWall>(dim, center, radius, Vec3::UnitX(), false);
+}
+
+MirrorWallPtr make_cylinder_wall(const Vec3& axis_point, const Vec3& axis, double radius) {
+  require(axis_point.allFinite(), "cylinder wall axis point", axis_point.norm(), "must be finite");
+  require(axis.allFinite() && axis.norm() > 0.0, "cylinder wall axis", axis.norm(), "must be finite and nonzero");
+  require(std::isfinite(radius) && radius > 0.0, "cylinder wall radius", radius, "must be finite and > 0");
+  return std::make_shared<RoundWall>(3, axis_point, radius, axis, true);
+}
+
+std::vector<MirrorWallPtr> mirror_walls(const Domain& domain, const std::vector<int>& open_patches) {
+  std::vector<MirrorWallPtr> all, closed;
+  std::vector<MirrorWallPtr> open;
+  for (int p = 0; p < domain.num_patches(); ++p) {
+    MirrorWallPtr w = domain.patch_wall(p);
+    require(w != nullptr, "mirror wall of patch", domain.patch_name(p),
+            "this domain has no wall surface for image blobs (use the barrier)");
+    if (std::find(open_patches.begin(), open_patches.end(), p) != open_patches.end()) open.push_back(w);
+    if (std::find(all.begin(), all.end(), w) == all.end()) all.push_back(w);
+  }
+  for (const auto& w : all)
+    if (std::find(open.begin(), open.end(), w) == open.end()) closed.push_back(w);
+  return closed;
+}
+
+WallImages::WallImages(std::vector<MirrorWallPtr> walls, int max_order) : walls_(std::move(walls)), max_order_(max_order) {
+  require(walls_.size() <= 255, "number of mirror walls", static_cast<double>(walls_.size()), "must be <= 255");
+  require(max_order >= 1 && max_order <= 3, "max_order", max_order, "must be 1, 2 or 3");
+  for (const auto& w : walls_) require(w != nullptr, "mirror wall", "null", "must not be null");
+}
+
+void WallImages::select(const std::vector<Vec3>& x, const std::vector<double>& reach) {
+  require(x.size() == reach.size(), "reach size", static_cast<double>(reach.size()), "must equal the particle count");
+  source_.clear();
+  order_.clear();
+  chain_.clear();
+  if (!active()) return;
+  std::vector<std::uint8_t> near;
+  for (std::size_t p = 0; p < x.size(); ++p) {
+    near.clear();
+    for (std::size_t w = 0; w < walls_.size(); ++w)
+      if (walls_[w]->distance(x[p]) >= -reach[p]) near.push_back(static_cast<std::uint8_t>(w));
+    // Every nonempty subset of the nearby walls, in increasing wall order.
+    const std::size_t k = std::min<std::size_t>(near.size(), 16);
+    for (std::uint32_t mask = 1; mask < (1u << k); ++mask) {
+      std::array<std::uint8_t, 3> c{0, 0, 0};
+      int order = 0;
+      bool too_many = false;
+      for (std::size_t j = 0; j < k; ++j) {
+        if (!(mask & (1u << j))) continue;
+        if (order == max_order_) {
+          too_many = true;
+          break;
+        }
+        c[static_cast<std::size_t>(order++)] = near[j];
+      }
+      if (too_many) continue;
+      source_.push_back(static_cast<std::uint32_t>(p));
+      order_.push_back(static_cast<std::uint8_t>(order));
+      chain_.push_back(c);
+    }
+  }
+}
+
+Vec3 WallImages::image(std::size_t i, const Vec3& x, Mat3* jacobian) const {
+  Vec3 y = x;
+  if (jacobian) jacobian->setIdentity();
+  for (int j = 0; j < order_[i]; ++j) {
+    const MirrorWall& w = *walls_[chain_[i][static_cast<std::size_t>(j)]];
+    if (jacobian) {
+      Mat3 jw;
+      y = w.reflect(y, &jw);
+      *jacobian = jw * *jacobian;  // chain rule: J = J_k ... J_1
+    } else {
+      y = w.reflect(y, nullptr);
+    }
+  }
+  return y;
+}
+
+void WallImages::positions(const std::vector<Vec3>& x, std::vector<Vec3>& y) const {
+  y.resize(source_.size());
+  for (std::size_t i = 0; i < source_.size(); ++i) y[i] = image(i, x[source_[i]], nullptr);
+}
+
+void WallImages::pull_back(const std::vector<Vec3>& x, const std::vector<Vec3>& g_image,
+                           std::vector<Vec3>& g_source) const {
+  // Serial in image order: the sum into each source is reproducible.
+  for (std::size_t i = 0; i < source_.size(); ++i) {
+    Mat3 jac;
+    image(i, x[source_[i]], &jac);
+    g_source[source_[i]] += jac.transpose() * g_image[i];
+  }
+}
+
+}  // namespace otfp
