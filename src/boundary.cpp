@@ -3,6 +3,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <functional>
+#include <limits>
+#include <queue>
+#include <stdexcept>
 #include <string>
 #include <utility>
 #include <vector>
@@ -16,6 +20,29 @@ constexpr std::uint64_t kQuadratureSeed = 0x626e647271756164ULL;
 // Counts are floors of mass ratios; a ratio that is an integer up to
 // round-off (e.g. 0.37 added 100 times) must count as that integer.
 constexpr double kCountTolerance = 1e-9;
+
+// Fixed seeds of the reservoir volumes / quadrature and of the points on A_l.
+constexpr std::uint64_t kReservoirSeed = 0x7265736572766f69ULL;
+constexpr std::uint64_t kSurfaceSeed = 0x7375726661636570ULL;
+// Automatic sublayer count: at most this many.
+constexpr int kMaxAutoSublayers = 64;
+// Rejection sampling of reservoir insertions: give up after this many tries per particle.
+constexpr long kMaxTriesPerInsert = 10'000'000;
+// A closed-form sublayer volume is used only if it agrees with the Monte
+// Carlo estimate within this many standard errors.
+constexpr double kVolumeAgreementSigmas = 4.0;
+
+Vec3 uniform_in(const Aabb& box, int dim, Rng& rng) {
+  Vec3 x = Vec3::Zero();
+  for (int k = 0; k < dim; ++k) x[k] = rng.uniform(box.lo[k], box.hi[k]);
+  return x;
+}
+
+double box_measure(const Aabb& box, int dim) {
+  double v = 1.0;
+  for (int k = 0; k < dim; ++k) v *= std::max(box.hi[k] - box.lo[k], 0.0);
+  return v;
+}
 
 // Same rule as Domain::in_layer_cell, applied to a query already made.
 bool in_part(double sd, double b, LayerPart part) {
@@ -60,9 +87,57 @@ PatchKind patch_kind_from_string(const std::string& s) {
   return PatchKind::NoFlux;
 }
 
+std::string to_string(NeumannOutflow m) {
+  switch (m) {
+    case NeumannOutflow::Layer: return "layer";
+    case NeumannOutflow::NearestParticles: return "nearest_particles";
+  }
+  return "unknown";
+}
+
+NeumannOutflow neumann_outflow_from_string(const std::string& s) {
+  if (s == "layer") return NeumannOutflow::Layer;
+  if (s == "nearest_particles") return NeumannOutflow::NearestParticles;
+  require(false, "boundary.neumann_outflow", s, "must be one of layer, nearest_particles");
+  return NeumannOutflow::Layer;
+}
+
+std::string to_string(DirichletMode m) {
+  switch (m) {
+    case DirichletMode::Layer: return "layer";
+    case DirichletMode::Reservoir: return "reservoir";
+  }
+  return "unknown";
+}
+
+DirichletMode dirichlet_mode_from_string(const std::string& s) {
+  if (s == "layer") return DirichletMode::Layer;
+  if (s == "reservoir") return DirichletMode::Reservoir;
+  require(false, "boundary.dirichlet_mode", s, "must be one of layer, reservoir");
+  return DirichletMode::Layer;
+}
+
 void ProjectionOptions::validate() const {
   require(std::isfinite(layer_b) && layer_b > 0.0, "boundary.layer_b", layer_b, "must be finite and > 0");
   require(quadrature_samples >= 1000, "boundary.quadrature_samples", quadrature_samples, "must be >= 1000");
+  require(neumann_outflow == NeumannOutflow::Layer || neumann_outflow == NeumannOutflow::NearestParticles,
+          "boundary.neumann_outflow", static_cast<double>(static_cast<int>(neumann_outflow)),
+          "must be layer or nearest_particles");
+  require(nearest_surface_points >= 16, "boundary.nearest_surface_points", nearest_surface_points, "must be >= 16");
+  require(dirichlet_mode == DirichletMode::Layer || dirichlet_mode == DirichletMode::Reservoir,
+          "boundary.dirichlet_mode", static_cast<double>(static_cast<int>(dirichlet_mode)),
+          "must be layer or reservoir");
+  if (dirichlet_mode != DirichletMode::Reservoir) return;
+  require(reservoir_domain != nullptr, "boundary.reservoir_domain", "null",
+          "must be set when boundary.dirichlet_mode = reservoir (Omega extended outward by w)");
+  require(std::isfinite(reservoir_thickness) && reservoir_thickness > 0.0, "boundary.reservoir_thickness",
+          reservoir_thickness, "must be finite and > 0 when boundary.dirichlet_mode = reservoir");
+  require(reservoir_sublayers >= 0 && reservoir_sublayers <= 1000, "boundary.reservoir_sublayers",
+          reservoir_sublayers, "must be in [0, 1000] (0: about one particle spacing per sublayer)");
+  require(reservoir_volume_samples >= 10000, "boundary.reservoir_volume_samples", reservoir_volume_samples,
+          "must be >= 10000");
+  require(!absorb_exterior, "boundary.absorb_exterior", "true",
+          "applies to dirichlet_mode = layer only (the reservoir always absorbs beyond boundary.reservoir_domain)");
 }
 
 BoundaryProjection::BoundaryProjection(DomainPtr domain, std::vector<PatchCondition> conditions,
@@ -120,6 +195,213 @@ BoundaryProjection::BoundaryProjection(DomainPtr domain, std::vector<PatchCondit
       }
     }
   }
+
+  reservoirs_.assign(n, Reservoir{});
+  if (options_.dirichlet_mode == DirichletMode::Reservoir) {
+    const Domain& ext = *options_.reservoir_domain;
+    require(ext.dim() == domain_->dim(), "boundary.reservoir_domain dim", ext.dim(),
+            "must equal the domain dim = " + std::to_string(domain_->dim()));
+    require(!ext.is_periodic(), "boundary.reservoir_domain", "periodic", "must have a boundary");
+    const Aabb own = domain_->bounding_box(), outer = ext.bounding_box();
+    const double tol = 1e-12 * (1.0 + (own.hi - own.lo).norm());
+    bool contains = true;
+    for (int k = 0; k < domain_->dim(); ++k)
+      contains = contains && outer.lo[k] <= own.lo[k] + tol && outer.hi[k] >= own.hi[k] - tol;
+    require(contains, "boundary.reservoir_domain", "bounding box",
+            "must contain the domain's bounding box (Omega extended outward by w over the Dirichlet patches)");
+    for (std::size_t i = 0; i < n; ++i)
+      if (conditions_[i].kind == PatchKind::Dirichlet) build_reservoir(i);
+  }
+
+  surface_points_.assign(n, {});
+  surface_center_.assign(n, Vec3::Zero());
+  surface_radius_.assign(n, 0.0);
+  if (options_.neumann_outflow == NeumannOutflow::NearestParticles) {
+    for (std::size_t i = 0; i < n; ++i) {
+      const PatchCondition& c = conditions_[i];
+      if (c.kind != PatchKind::Neumann) continue;
+      // Closest points of uniform samples of B_l: points of A_l, denser
+      // where A_l is (about uniform in area for b small against curvature).
+      Rng rng(kSurfaceSeed + static_cast<std::uint64_t>(c.patch));
+      std::vector<Vec3>& pts = surface_points_[i];
+      pts.reserve(static_cast<std::size_t>(options_.nearest_surface_points));
+      Vec3 sum = Vec3::Zero();
+      for (int k = 0; k < options_.nearest_surface_points; ++k) {
+        pts.push_back(domain_->closest_point(domain_->sample_layer_cell(c.patch, b, LayerPart::Whole, rng)));
+        sum += pts.back();
+      }
+      surface_center_[i] = sum / static_cast<double>(pts.size());
+      for (const Vec3& y : pts) surface_radius_[i] = std::max(surface_radius_[i], (y - surface_center_[i]).norm());
+    }
+  }
+}
+
+int BoundaryProjection::sublayer_of(double sd, int sublayers) const {
+  const double w = options_.reservoir_thickness;
+  if (!(sd > 0.0) || sd > w) return -1;
+  const int j = static_cast<int>(std::ceil(sd * static_cast<double>(sublayers) / w)) - 1;
+  return std::clamp(j, 0, sublayers - 1);
+}
+
+// Sublayer volumes. One fixed-seed Monte Carlo pass over a box around the
+// band (Omega's layer box of the patch inflated by w, intersected with
+// Omega_ext's box) gives the volume of every sublayer with its standard error,
+// and the quadrature points of g. Two closed forms are then tried, and one is
+// used only if the domain gives it in closed form and it agrees with the Monte
+// Carlo estimate within 4 standard errors in every sublayer:
+//  - "exterior_shell": differences of Domain::layer_cell_volume(patch, t,
+//    Exterior). Exact for a ball in a concentric ball of radius R + w. For a
+//    box or cylinder it includes the edge wedges / rim torus, which lie
+//    outside a face-extended box or cylinder, so it fails the check there.
+//    "In closed form" is tested by asking twice with different sample counts:
+//    a Monte Carlo implementation answers differently.
+//  - "slab": patch area x sublayer thickness, exact for a flat patch whose
+//    reservoir domain extends straight out over it (a box face with its lo or
+//    hi moved by w).
+// Otherwise ("monte_carlo") the Monte Carlo values are used, with relative
+// error about sqrt(|box| / (N |sublayer|)).
+void BoundaryProjection::build_reservoir(std::size_t i) {
+  const PatchCondition& c = conditions_[i];
+  const Domain& ext = *options_.reservoir_domain;
+  const double w = options_.reservoir_thickness;
+  const int d = domain_->dim();
+  const int samples = options_.reservoir_volume_samples;
+  Reservoir& r = reservoirs_[i];
+  const Aabb layer_box = domain_->layer_bounding_box(c.patch, w);
+  const Aabb ext_box = ext.bounding_box();
+  r.box = Aabb{layer_box.lo.cwiseMax(ext_box.lo), layer_box.hi.cwiseMin(ext_box.hi)};
+  const double box_volume = box_measure(r.box, d);
+  const std::string name = "'" + domain_->patch_name(c.patch) + "'";
+  require(box_volume > 0.0, "boundary.reservoir_domain", "bounding box",
+          "must overlap the layer box of the Dirichlet patch " + name);
+  // Depth in Omega of a point of the band of this patch, or -1.
+  auto band_depth = [&](const Vec3& x) {
+    const BoundaryQuery q = domain_->query(x);
+    if (q.patch != c.patch || !(q.signed_distance > 0.0) || q.signed_distance > w) return -1.0;
+    if (ext.signed_distance(x) > 0.0) return -1.0;
+    return q.signed_distance;
+  };
+  const std::size_t cap = c.data_is_constant ? 1 : static_cast<std::size_t>(options_.quadrature_samples);
+
+  int sublayers = options_.reservoir_sublayers;
+  if (sublayers == 0) {
+    // About one particle spacing (m_p / g0)^(1/d) per sublayer, g0 the mean
+    // of g over the band at t = 0; one sublayer if g0 <= 0.
+    Rng rng(kReservoirSeed + static_cast<std::uint64_t>(c.patch));
+    double sum = 0.0;
+    std::size_t found = 0;
+    for (int k = 0; k < samples && found < cap; ++k) {
+      const Vec3 x = uniform_in(r.box, d, rng);
+      if (band_depth(x) < 0.0) continue;
+      sum += c.data(x, 0.0);
+      ++found;
+    }
+    require(found > 0, "boundary.reservoir_domain", "band of patch " + name,
+            "is empty: the reservoir domain must extend beyond the Dirichlet patch by boundary.reservoir_thickness");
+    const double g0 = sum / static_cast<double>(found);
+    sublayers = 1;
+    if (std::isfinite(g0) && g0 > 0.0) {
+      const double spacing = std::pow(particle_mass_ / g0, 1.0 / static_cast<double>(d));
+      sublayers = static_cast<int>(std::clamp(std::lround(w / spacing), 1L, static_cast<long>(kMaxAutoSublayers)));
+    }
+  }
+  const auto K = static_cast<std::size_t>(sublayers);
+  r.sublayers = sublayers;
+  r.carry.assign(K, 0.0);
+  r.quadrature.assign(K, {});
+  std::vector<long> hits(K, 0);
+  Rng rng(kReservoirSeed + static_cast<std::uint64_t>(c.patch));
+  for (int k = 0; k < samples; ++k) {
+    const Vec3 x = uniform_in(r.box, d, rng);
+    const int j = sublayer_of(band_depth(x), sublayers);
+    if (j < 0) continue;
+    const auto jj = static_cast<std::size_t>(j);
+    ++hits[jj];
+    if (r.quadrature[jj].size() < cap) r.quadrature[jj].push_back(x);
+  }
+  long total = 0;
+  for (long h : hits) total += h;
+  require(total > 0, "boundary.reservoir_domain", "band of patch " + name,
+          "is empty: the reservoir domain must extend beyond the Dirichlet patch by boundary.reservoir_thickness");
+
+  std::vector<double> mc(K), se(K);
+  for (std::size_t j = 0; j < K; ++j) {
+    const double p = static_cast<double>(hits[j]) / static_cast<double>(samples);
+    mc[j] = box_volume * p;
+    se[j] = box_volume * std::sqrt(p * (1.0 - p) / static_cast<double>(samples));
+  }
+  auto depth = [&](std::size_t j) { return w * static_cast<double>(j) / static_cast<double>(sublayers); };
+  auto agrees = [&](const std::vector<double>& v) {
+    for (std::size_t j = 0; j < K; ++j)
+      if (!(std::abs(v[j] - mc[j]) <= kVolumeAgreementSigmas * se[j] + 1e-9 * std::max(v[j], mc[j]))) return false;
+    return true;
+  };
+  std::vector<double> shell(K), slab(K);
+  bool shell_closed_form = true;
+  double below = 0.0;
+  for (std::size_t j = 0; j < K; ++j) {
+    const double t = depth(j + 1);
+    const double v1 = domain_->layer_cell_volume(c.patch, t, LayerPart::Exterior, 1000);
+    const double v2 = domain_->layer_cell_volume(c.patch, t, LayerPart::Exterior, 1001);
+    shell_closed_form = shell_closed_form && v1 == v2;
+    shell[j] = v1 - below;
+    below = v1;
+    slab[j] = domain_->patch_area(c.patch) * (t - depth(j));
+  }
+  if (shell_closed_form && agrees(shell)) {
+    r.volume = shell;
+    r.volume_rule = "exterior_shell";
+  } else if (agrees(slab)) {
+    r.volume = slab;
+    r.volume_rule = "slab";
+  } else {
+    r.volume = mc;
+    r.volume_rule = "monte_carlo";
+  }
+}
+
+const BoundaryProjection::Reservoir& BoundaryProjection::reservoir_of(std::size_t condition_index) const {
+  require(condition_index < conditions_.size(), "boundary condition index", static_cast<double>(condition_index),
+          "must be < number of conditions = " + std::to_string(conditions_.size()));
+  require(reservoirs_[condition_index].sublayers > 0, "boundary condition " + std::to_string(condition_index),
+          to_string(conditions_[condition_index].kind) + ", dirichlet_mode " + to_string(options_.dirichlet_mode),
+          "must be a dirichlet condition with dirichlet_mode = reservoir");
+  return reservoirs_[condition_index];
+}
+
+int BoundaryProjection::reservoir_sublayer_count(std::size_t condition_index) const {
+  return reservoir_of(condition_index).sublayers;
+}
+
+double BoundaryProjection::reservoir_sublayer_volume(std::size_t condition_index, int sublayer) const {
+  const Reservoir& r = reservoir_of(condition_index);
+  require(sublayer >= 0 && sublayer < r.sublayers, "reservoir sublayer", sublayer,
+          "must be in [0, " + std::to_string(r.sublayers) + ")");
+  return r.volume[static_cast<std::size_t>(sublayer)];
+}
+
+double BoundaryProjection::reservoir_target_count(std::size_t condition_index, int sublayer, double t) const {
+  const Reservoir& r = reservoir_of(condition_index);
+  require(sublayer >= 0 && sublayer < r.sublayers, "reservoir sublayer", sublayer,
+          "must be in [0, " + std::to_string(r.sublayers) + ")");
+  const auto j = static_cast<std::size_t>(sublayer);
+  if (r.quadrature[j].empty() || r.volume[j] <= 0.0) return 0.0;
+  const PatchCondition& c = conditions_[condition_index];
+  const double x = r.volume[j] * mean_of(c.data, r.quadrature[j], t) / particle_mass_;
+  require(std::isfinite(x), "reservoir target count (patch " + std::to_string(c.patch) + ")", x,
+          "must be finite (check g)");
+  return x;
+}
+
+double BoundaryProjection::reservoir_carry(std::size_t condition_index, int sublayer) const {
+  const Reservoir& r = reservoir_of(condition_index);
+  require(sublayer >= 0 && sublayer < r.sublayers, "reservoir sublayer", sublayer,
+          "must be in [0, " + std::to_string(r.sublayers) + ")");
+  return r.carry[static_cast<std::size_t>(sublayer)];
+}
+
+const std::string& BoundaryProjection::reservoir_volume_rule(std::size_t condition_index) const {
+  return reservoir_of(condition_index).volume_rule;
 }
 
 std::vector<int> BoundaryProjection::dirichlet_patches() const {
@@ -158,27 +440,64 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
   const double b = options_.layer_b;
   const double mp = particle_mass_;
   const std::size_t nc = conditions_.size();
+  const bool reservoir_mode = options_.dirichlet_mode == DirichletMode::Reservoir;
+  const bool nearest_outflow = options_.neumann_outflow == NeumannOutflow::NearestParticles;
+  const double threshold = mp * (1.0 - kCountTolerance);
 
   // Layer-cell members of every active condition, from one query per particle.
   // Cells of different patches are disjoint and inserted particles are only
   // appended, so these indices stay valid until the single removal at the end.
   std::vector<int> condition_of_patch(static_cast<std::size_t>(domain_->num_patches()), -1);
-  bool any_active = false;
+  bool any_active = false, any_outflow_fallback = false;
   for (std::size_t i = 0; i < nc; ++i) {
     if (conditions_[i].kind == PatchKind::NoFlux) continue;
     condition_of_patch[static_cast<std::size_t>(conditions_[i].patch)] = static_cast<int>(i);
     any_active = true;
+    any_outflow_fallback = any_outflow_fallback || (nearest_outflow && conditions_[i].kind == PatchKind::Neumann);
   }
+  const std::size_t n0 = particles.size();
   std::vector<std::vector<std::size_t>> members(nc);
   std::vector<double> member_mass(nc, 0.0);
+  std::vector<std::vector<std::vector<std::size_t>>> sublayer_members(nc);  // Reservoir: [condition][j]
+  std::vector<std::vector<std::size_t>> absorbed(nc);                       // beyond the controlled region
+  for (std::size_t i = 0; i < nc; ++i) sublayer_members[i].resize(static_cast<std::size_t>(reservoirs_[i].sublayers));
+  // Signed distance and patch of every particle, kept for the outflow fallback.
+  std::vector<double> sd_of;
+  std::vector<int> patch_of;
+  if (any_outflow_fallback) {
+    sd_of.resize(n0);
+    patch_of.resize(n0);
+  }
   if (any_active) {
-    const std::size_t n0 = particles.size();
     for (std::size_t p = 0; p < n0; ++p) {
-      const BoundaryQuery q = domain_->query(particles.positions()[p]);
+      const Vec3& x = particles.positions()[p];
+      const BoundaryQuery q = domain_->query(x);
+      if (any_outflow_fallback) {
+        sd_of[p] = q.signed_distance;
+        patch_of[p] = q.patch;
+      }
       if (q.patch < 0) continue;
       const int ci = condition_of_patch[static_cast<std::size_t>(q.patch)];
       if (ci < 0) continue;
       const auto i = static_cast<std::size_t>(ci);
+      if (conditions_[i].kind == PatchKind::Dirichlet) {
+        if (reservoir_mode) {
+          // Inside Omega: never touched. Beyond Omega_ext: absorbed. In the
+          // band: a member of its sublayer. Deeper than w inside Omega_ext: left alone.
+          if (!(q.signed_distance > 0.0)) continue;
+          if (options_.reservoir_domain->signed_distance(x) > 0.0) {
+            absorbed[i].push_back(p);
+            continue;
+          }
+          const int j = sublayer_of(q.signed_distance, reservoirs_[i].sublayers);
+          if (j >= 0) sublayer_members[i][static_cast<std::size_t>(j)].push_back(p);
+          continue;
+        }
+        if (options_.absorb_exterior && q.signed_distance > 0.0) {
+          absorbed[i].push_back(p);
+          continue;
+        }
+      }
       // Dirichlet acts on B_l^int, Neumann on the whole B_l (Algorithm 1, lines 8 and 18-20).
       const LayerPart part = conditions_[i].kind == PatchKind::Dirichlet ? LayerPart::Interior : LayerPart::Whole;
       if (!in_part(q.signed_distance, b, part)) continue;
@@ -189,6 +508,16 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
 
   PatchLedger call;
   std::vector<std::size_t> to_remove;
+  auto remove_for = [&](std::size_t i, std::size_t index) {
+    PatchLedger& led = ledger_[i];
+    const double m = particles.masses()[index];
+    to_remove.push_back(index);
+    ++led.removed;
+    ++call.removed;
+    led.mass_removed += m;
+    call.mass_removed += m;
+    return m;
+  };
   for (std::size_t i = 0; i < nc; ++i) {
     const PatchCondition& c = conditions_[i];
     PatchLedger& led = ledger_[i];
@@ -200,17 +529,19 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
       led.mass_inserted += mp;
       call.mass_inserted += mp;
     };
-    auto remove = [&](std::size_t index) {
-      const double m = particles.masses()[index];
-      to_remove.push_back(index);
-      ++led.removed;
-      ++call.removed;
-      led.mass_removed += m;
-      call.mass_removed += m;
-      return m;
-    };
+    auto remove = [&](std::size_t index) { return remove_for(i, index); };
 
-    if (c.kind == PatchKind::Dirichlet) {
+    for (std::size_t p : absorbed[i]) {
+      const double m = remove(p);
+      ++led.absorbed;
+      ++call.absorbed;
+      led.mass_absorbed += m;
+      call.mass_absorbed += m;
+    }
+
+    if (c.kind == PatchKind::Dirichlet && reservoir_mode) {
+      project_reservoir(i, sublayer_members[i], particles, t_new, rng, call, to_remove);
+    } else if (c.kind == PatchKind::Dirichlet) {
       // Sec. 4.2 after (34): insert floor((m - m_pre)/m_p) particles when the
       // cell is short, delete floor((m_pre - m)/m_p) random ones when it is over.
       const double target = dirichlet_target_mass(i, t_new);
@@ -242,7 +573,6 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
       // METHOD-NOTES 2.6: move whole particles and carry the remainder, instead
       // of dropping floor's fraction every step as (50) does.
       led.carry += inflow;
-      const double threshold = mp * (1.0 - kCountTolerance);
       while (led.carry >= threshold) {
         insert(LayerPart::Whole);
         led.carry -= mp;
@@ -252,17 +582,143 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
         led.carry += remove(draw_without_replacement(members[i], k, rng));
         ++k;
       }
-      // Whatever could not be removed stays in carry; deficit flags it.
-      led.deficit = led.carry <= -threshold ? -led.carry : 0.0;
     }
-    if (c.kind == PatchKind::Neumann) {
-      call.carry += led.carry;
-      call.deficit += led.deficit;
+  }
+
+  // NearestParticles: what B_l could not supply comes from the particles
+  // nearest A_l, after every condition has taken its own particles.
+  if (any_outflow_fallback) {
+    std::vector<char> taken(n0, 0);
+    for (std::size_t p : to_remove) taken[p] = 1;
+    for (std::size_t i = 0; i < nc; ++i) {
+      if (conditions_[i].kind != PatchKind::Neumann || ledger_[i].carry > -threshold) continue;
+      remove_nearest(i, particles, sd_of, patch_of, taken, threshold, [&](std::size_t p) { return remove_for(i, p); });
     }
+  }
+
+  // Whatever could not be removed stays in carry; deficit flags it.
+  for (std::size_t i = 0; i < nc; ++i) {
+    if (conditions_[i].kind != PatchKind::Neumann) continue;
+    PatchLedger& led = ledger_[i];
+    led.deficit = led.carry <= -threshold ? -led.carry : 0.0;
+    call.carry += led.carry;
+    call.deficit += led.deficit;
   }
 
   if (!to_remove.empty()) particles.remove_indices(std::move(to_remove));
   return call;
+}
+
+void BoundaryProjection::project_reservoir(std::size_t i, std::vector<std::vector<std::size_t>>& sublayer_members,
+                                           ParticleSet& particles, double t_new, Rng& rng, PatchLedger& call,
+                                           std::vector<std::size_t>& to_remove) {
+  const PatchCondition& c = conditions_[i];
+  PatchLedger& led = ledger_[i];
+  Reservoir& r = reservoirs_[i];
+  const auto K = static_cast<std::size_t>(r.sublayers);
+  const double mp = particle_mass_;
+  std::vector<long> missing(K, 0);
+  long total_missing = 0;
+  for (std::size_t j = 0; j < K; ++j) {
+    // Error diffusion: T_j = floor(X_j + r_j), r_j <- X_j + r_j - T_j, so
+    // the mean of T_j over calls is X_j. A negative target acts as zero.
+    const double v = reservoir_target_count(i, static_cast<int>(j), t_new) + r.carry[j];
+    long target = 0;
+    if (v > 0.0) {
+      target = static_cast<long>(std::floor(v + kCountTolerance));
+      r.carry[j] = v - static_cast<double>(target);
+    } else {
+      r.carry[j] = 0.0;
+    }
+    std::vector<std::size_t>& in_j = sublayer_members[j];
+    const auto have = static_cast<long>(in_j.size());
+    if (have > target) {
+      // Surplus: uniformly at random among the sublayer's particles.
+      for (long k = 0; k < have - target; ++k) {
+        const std::size_t p = draw_without_replacement(in_j, static_cast<std::size_t>(k), rng);
+        const double m = particles.masses()[p];
+        to_remove.push_back(p);
+        ++led.removed;
+        ++call.removed;
+        led.mass_removed += m;
+        call.mass_removed += m;
+      }
+    } else {
+      missing[j] = target - have;
+      total_missing += missing[j];
+    }
+  }
+  if (total_missing == 0) return;
+  // Missing particles: uniform in their sublayer, by rejection from the box
+  // around the band; one loop fills every sublayer of the patch.
+  const Domain& ext = *options_.reservoir_domain;
+  const double w = options_.reservoir_thickness;
+  const int d = domain_->dim();
+  particles.reserve(particles.size() + static_cast<std::size_t>(total_missing));
+  long tries = 0;
+  while (total_missing > 0) {
+    if (++tries > kMaxTriesPerInsert * total_missing)
+      throw std::runtime_error("reservoir of patch '" + domain_->patch_name(c.patch) +
+                               "': no point of a sublayer found in " + std::to_string(tries) +
+                               " tries (empty sublayer?)");
+    const Vec3 x = uniform_in(r.box, d, rng);
+    const BoundaryQuery q = domain_->query(x);
+    if (q.patch != c.patch || !(q.signed_distance > 0.0) || q.signed_distance > w) continue;
+    const int j = sublayer_of(q.signed_distance, r.sublayers);
+    if (j < 0 || missing[static_cast<std::size_t>(j)] == 0) continue;
+    if (ext.signed_distance(x) > 0.0) continue;
+    particles.add(x, width_s_, mp, t_new);
+    --missing[static_cast<std::size_t>(j)];
+    --total_missing;
+    ++led.inserted;
+    ++call.inserted;
+    led.mass_inserted += mp;
+    call.mass_inserted += mp;
+  }
+}
+
+// Nearest particles to A_l, nearest first, by branch and bound: every
+// candidate gets a lower bound of its distance (|sd|, exact when its closest
+// boundary point is on A_l; otherwise also |x - c| - rho for the sphere
+// (c, rho) around the points on A_l), and exact distances are evaluated in
+// order of the bound only while the bound can still beat the best found.
+void BoundaryProjection::remove_nearest(std::size_t i, const ParticleSet& particles, const std::vector<double>& sd_of,
+                                        const std::vector<int>& patch_of, std::vector<char>& taken, double threshold,
+                                        const std::function<double(std::size_t)>& remove) {
+  const int patch = conditions_[i].patch;
+  const std::vector<Vec3>& pts = surface_points_[i];
+  const Vec3& center = surface_center_[i];
+  const double radius = surface_radius_[i];
+  const std::vector<Vec3>& x = particles.positions();
+  auto exact = [&](std::size_t p) {
+    if (patch_of[p] == patch) return std::abs(sd_of[p]);
+    double best = std::numeric_limits<double>::infinity();
+    for (const Vec3& y : pts) best = std::min(best, (x[p] - y).squaredNorm());
+    return std::sqrt(best);
+  };
+  std::vector<std::pair<double, std::size_t>> bound;
+  for (std::size_t p = 0; p < taken.size(); ++p) {
+    if (taken[p]) continue;
+    const double lb = patch_of[p] == patch ? std::abs(sd_of[p])
+                                           : std::max(std::abs(sd_of[p]), (x[p] - center).norm() - radius);
+    bound.emplace_back(std::isfinite(lb) ? lb : 0.0, p);
+  }
+  std::sort(bound.begin(), bound.end());
+  using Entry = std::pair<double, std::size_t>;
+  std::priority_queue<Entry, std::vector<Entry>, std::greater<>> evaluated;
+  std::size_t next = 0;
+  PatchLedger& led = ledger_[i];
+  while (led.carry <= -threshold) {
+    while (next < bound.size() && (evaluated.empty() || bound[next].first <= evaluated.top().first)) {
+      evaluated.emplace(exact(bound[next].second), bound[next].second);
+      ++next;
+    }
+    if (evaluated.empty()) break;  // no particle left: the debt stays in carry
+    const std::size_t p = evaluated.top().second;
+    evaluated.pop();
+    taken[p] = 1;
+    led.carry += remove(p);
+  }
 }
 
 }  // namespace otfp

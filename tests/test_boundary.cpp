@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <functional>
 #include <limits>
@@ -375,4 +376,570 @@ TEST(BoundaryProjection, BadInputNamesTheField) {
   expect_invalid([&] { bp.dirichlet_target_mass(5, 0.0); }, "boundary condition index");
   // A NoFlux patch needs no data.
   EXPECT_NO_THROW(build({condition(3, PatchKind::NoFlux)}));
+}
+
+// =========================================================================== issue 10 options
+
+namespace {
+
+ProjectionOptions reservoir_options(DomainPtr ext, double w, int sublayers) {
+  ProjectionOptions o = options_with_b(0.1);
+  o.dirichlet_mode = DirichletMode::Reservoir;
+  o.reservoir_domain = std::move(ext);
+  o.reservoir_thickness = w;
+  o.reservoir_sublayers = sublayers;
+  return o;
+}
+
+// Sublayer of a point at depth sd outside Omega, computed independently of the
+// library: j with sd in (j w / K, (j + 1) w / K], -1 outside the band.
+int sublayer_index(double sd, double w, int K) {
+  if (!(sd > 0.0) || sd > w) return -1;
+  for (int j = 0; j < K; ++j)
+    if (sd <= w * (j + 1) / K) return j;
+  return K - 1;
+}
+
+// Counts per sublayer of the unit-ball reservoir (sd = |x| - R).
+std::vector<long> ball_sublayer_counts(const ParticleSet& ps, double R, double w, int K) {
+  std::vector<long> n(static_cast<std::size_t>(K), 0);
+  for (const Vec3& x : ps.positions()) {
+    const int j = sublayer_index(x.norm() - R, w, K);
+    if (j >= 0) ++n[static_cast<std::size_t>(j)];
+  }
+  return n;
+}
+
+double shell_volume(double r0, double r1) { return 4.0 / 3.0 * kPi * (r1 * r1 * r1 - r0 * r0 * r0); }
+
+}  // namespace
+
+TEST(BoundaryProjection, OptionStringsRoundTrip) {
+  for (NeumannOutflow m : {NeumannOutflow::Layer, NeumannOutflow::NearestParticles})
+    EXPECT_EQ(neumann_outflow_from_string(to_string(m)), m);
+  for (DirichletMode m : {DirichletMode::Layer, DirichletMode::Reservoir})
+    EXPECT_EQ(dirichlet_mode_from_string(to_string(m)), m);
+  EXPECT_EQ(to_string(NeumannOutflow::NearestParticles), "nearest_particles");
+  EXPECT_EQ(to_string(DirichletMode::Reservoir), "reservoir");
+  const ProjectionOptions d;
+  EXPECT_EQ(d.neumann_outflow, NeumannOutflow::Layer);
+  EXPECT_EQ(d.dirichlet_mode, DirichletMode::Layer);
+  EXPECT_FALSE(d.absorb_exterior);
+}
+
+// --------------------------------------------------------------------------- reservoir
+
+// Unit ball, Dirichlet surface, band of w = 0.15 in K = 3 sublayers of 0.05.
+// Targets from the exact shell volumes; the first call fills each sublayer to
+// floor(X_j) (carry 0) with particles only in the band.
+TEST(BoundaryProjection, ReservoirHoldsEachSublayerAtItsTarget) {
+  const double R = 1.0, w = 0.15, g = 0.238732, mp = 1.0 / 1600.0, s = 0.05, dt = 0.01;
+  const int K = 3;
+  const auto ball = make_ball(3, Vec3::Zero(), R);
+  BoundaryProjection bp(ball, {condition(0, PatchKind::Dirichlet, constant(g))},
+                        reservoir_options(make_ball(3, Vec3::Zero(), R + w), w, K), mp, s);
+  ASSERT_EQ(bp.reservoir_sublayer_count(0), K);
+  EXPECT_EQ(bp.reservoir_volume_rule(0), "exterior_shell");
+  std::vector<double> X(K);
+  for (int j = 0; j < K; ++j) {
+    const double vol = shell_volume(R + w * j / K, R + w * (j + 1) / K);
+    EXPECT_NEAR(bp.reservoir_sublayer_volume(0, j), vol, 1e-12 * vol) << "sublayer " << j;
+    X[static_cast<std::size_t>(j)] = g * vol / mp;
+    EXPECT_NEAR(bp.reservoir_target_count(0, j, dt), X[static_cast<std::size_t>(j)], 1e-9);
+  }
+
+  ParticleSet ps(3);
+  Rng rng(41);
+  const PatchLedger call = bp.apply(ps, 0.0, dt, rng);
+  const std::vector<long> n = ball_sublayer_counts(ps, R, w, K);
+  long sum = 0;
+  for (int j = 0; j < K; ++j) {
+    const auto jj = static_cast<std::size_t>(j);
+    EXPECT_EQ(n[jj], static_cast<long>(std::floor(X[jj]))) << "sublayer " << j;
+    EXPECT_LT(std::abs(static_cast<double>(n[jj]) - X[jj]), 1.0);
+    EXPECT_NEAR(bp.reservoir_carry(0, j), X[jj] - std::floor(X[jj]), 1e-9);
+    sum += n[jj];
+  }
+  for (std::size_t p = 0; p < ps.size(); ++p) {
+    const double r = ps.positions()[p].norm();
+    ASSERT_GT(r, R) << "particle " << p << " inside Omega";
+    ASSERT_LE(r, R + w) << "particle " << p << " beyond the band";
+    ASSERT_EQ(ps.birth_times()[p], dt);
+  }
+  EXPECT_EQ(sum, static_cast<long>(ps.size()));
+  EXPECT_EQ(call.inserted, sum);
+  EXPECT_EQ(bp.ledger()[0].inserted, sum);
+  EXPECT_EQ(bp.ledger()[0].removed, 0);
+  EXPECT_NEAR(bp.ledger()[0].mass_inserted, ps.total_mass(), 1e-12);
+  // The band is filled evenly: the outer sublayer is the largest, and the
+  // count per unit volume is g / m_p in each.
+  for (int j = 0; j < K; ++j)
+    EXPECT_NEAR(n[static_cast<std::size_t>(j)] * mp / bp.reservoir_sublayer_volume(0, j), g,
+                mp / bp.reservoir_sublayer_volume(0, j));
+}
+
+// Integer targets (box face, exact slabs of 0.1 x 1 x 1, g = 0.5, m_p = 1e-3:
+// 50 particles each): once filled, apply() without motion changes nothing.
+// Non-integer targets (ball): each call changes a sublayer by at most one
+// particle and the count averaged over calls is X_j (error diffusion).
+TEST(BoundaryProjection, ReservoirRepeatedApplyWithoutMotion) {
+  {
+    const double w = 0.3;
+    const auto box = make_box(3, Vec3(0, 0, 0), Vec3(1, 1, 1));
+    const auto ext = make_box(3, Vec3(-w, 0, 0), Vec3(1, 1, 1));
+    BoundaryProjection bp(box, {condition(0, PatchKind::Dirichlet, constant(0.5))}, reservoir_options(ext, w, 3),
+                          1e-3, 0.05);
+    ParticleSet ps(3);
+    Rng rng(3);
+    EXPECT_EQ(bp.apply(ps, 0.0, 0.1, rng).inserted, 150);
+    for (int k = 1; k <= 10; ++k) {
+      const PatchLedger call = bp.apply(ps, 0.1 * k, 0.1, rng);
+      EXPECT_EQ(call.inserted, 0) << "call " << k;
+      EXPECT_EQ(call.removed, 0) << "call " << k;
+    }
+    EXPECT_EQ(ps.size(), 150u);
+  }
+  const double R = 1.0, w = 0.15, g = 0.238732, mp = 1.0 / 1600.0;
+  const int K = 3, calls = 200;
+  const auto ball = make_ball(3, Vec3::Zero(), R);
+  BoundaryProjection bp(ball, {condition(0, PatchKind::Dirichlet, constant(g))},
+                        reservoir_options(make_ball(3, Vec3::Zero(), R + w), w, K), mp, 0.05);
+  ParticleSet ps(3);
+  Rng rng(5);
+  bp.apply(ps, 0.0, 0.0, rng);
+  std::vector<long> prev = ball_sublayer_counts(ps, R, w, K);
+  std::vector<double> mean(K, 0.0);
+  for (int k = 0; k < calls; ++k) {
+    bp.apply(ps, 0.0, 0.0, rng);
+    const std::vector<long> n = ball_sublayer_counts(ps, R, w, K);
+    for (std::size_t j = 0; j < static_cast<std::size_t>(K); ++j) {
+      ASSERT_LE(std::abs(n[j] - prev[j]), 1) << "call " << k << " sublayer " << j;
+      mean[j] += static_cast<double>(n[j]) / calls;
+    }
+    prev = n;
+  }
+  for (int j = 0; j < K; ++j)
+    EXPECT_NEAR(mean[static_cast<std::size_t>(j)], bp.reservoir_target_count(0, j, 0.0), 1.0 / calls + 1e-9)
+        << "sublayer " << j;
+}
+
+// Beyond Omega_ext on a Dirichlet patch: absorbed and counted. Outside a
+// no-flux wall (the barrier's business) and in the band: kept.
+TEST(BoundaryProjection, ReservoirAbsorbsParticlesBeyondItsDomain) {
+  const double w = 0.3, mp = 1e-3;
+  const auto box = make_box(3, Vec3(0, 0, 0), Vec3(1, 1, 1));
+  const auto ext = make_box(3, Vec3(-w, 0, 0), Vec3(1, 1, 1));
+  BoundaryProjection bp(box, {condition(2, PatchKind::NoFlux), condition(0, PatchKind::Dirichlet, constant(0.5))},
+                        reservoir_options(ext, w, 3), mp, 0.05);
+  ParticleSet ps(3);
+  const ParticleId beyond = ps.add(Vec3(-0.4, 0.5, 0.5), 0.05, mp);
+  const ParticleId beside = ps.add(Vec3(-0.2, -0.05, 0.5), 0.05, 2.0 * mp);  // outside ext's y- side, patch x-
+  const ParticleId wall = ps.add(Vec3(0.5, -0.05, 0.5), 0.05, mp);           // outside the no-flux y- wall
+  const ParticleId band = ps.add(Vec3(-0.15, 0.5, 0.5), 0.05, mp);           // sublayer 1
+  Rng rng(7);
+  const PatchLedger call = bp.apply(ps, 0.0, 0.1, rng);
+  EXPECT_LT(ps.index_of(beyond), 0);
+  EXPECT_LT(ps.index_of(beside), 0);
+  EXPECT_GE(ps.index_of(wall), 0);
+  EXPECT_GE(ps.index_of(band), 0);
+  EXPECT_EQ(call.absorbed, 2);
+  EXPECT_NEAR(call.mass_absorbed, 3.0 * mp, 1e-15);
+  EXPECT_EQ(call.removed, 2);  // absorbed ones are part of removed
+  EXPECT_EQ(bp.ledger()[1].absorbed, 2);
+  EXPECT_EQ(bp.ledger()[1].removed, 2);
+  EXPECT_NEAR(bp.ledger()[1].mass_removed, 3.0 * mp, 1e-15);
+  EXPECT_EQ(bp.ledger()[0].removed + bp.ledger()[0].inserted, 0);
+  EXPECT_EQ(call.inserted, 149);  // 150 targeted, one already there
+  EXPECT_EQ(ps.size(), 151u);
+}
+
+// Particles inside Omega, even at the surface or deep in the papers' layer,
+// are never moved, removed or counted, whatever the reservoir holds.
+TEST(BoundaryProjection, ReservoirNeverTouchesParticlesInsideOmega) {
+  const double R = 1.0, w = 0.15, mp = 1.0 / 1600.0;
+  const auto ball = make_ball(3, Vec3::Zero(), R);
+  BoundaryProjection bp(ball, {condition(0, PatchKind::Dirichlet, constant(0.238732))},
+                        reservoir_options(make_ball(3, Vec3::Zero(), R + w), w, 3), mp, 0.05);
+  ParticleSet ps(3);
+  Rng fill(9);
+  std::vector<ParticleId> ids;
+  std::vector<Vec3> where;
+  for (int k = 0; k < 3000; ++k) {  // three times the band's target, all inside
+    Vec3 x = ball->sample_interior(fill);
+    if (k % 3 == 0) x *= R / x.norm();  // on the surface itself (sd = 0 up to round-off)
+    if (ball->signed_distance(x) > 0.0) x *= 1.0 - 1e-15;
+    ids.push_back(ps.add(x, 0.05, mp));
+    where.push_back(x);
+  }
+  Rng rng(10);
+  for (int k = 0; k < 3; ++k) {
+    const PatchLedger call = bp.apply(ps, 0.0, 0.0, rng);
+    EXPECT_EQ(call.removed, 0);
+  }
+  for (std::size_t k = 0; k < ids.size(); ++k) {
+    const std::ptrdiff_t p = ps.index_of(ids[k]);
+    ASSERT_GE(p, 0) << "particle " << k << " removed";
+    ASSERT_EQ(ps.positions()[static_cast<std::size_t>(p)], where[k]);
+  }
+}
+
+// Random motion between calls (a stand-in for diffusion): particles leave the
+// band inward (inflow), outward (absorbed) and between sublayers. Each call
+// sets sublayer j to T_j with sum over calls of T_j = sum of X_j - r_j(end),
+// so the mean band mass equals g |band| within K m_p / calls: no drift.
+TEST(BoundaryProjection, ReservoirMeanBandMassHasNoDrift) {
+  const double R = 1.0, w = 0.15, g = 0.238732, mp = 1.0 / 1600.0, sigma = 0.02;
+  const int K = 3, calls = 300;
+  const auto ball = make_ball(3, Vec3::Zero(), R);
+  BoundaryProjection bp(ball, {condition(0, PatchKind::Dirichlet, constant(g))},
+                        reservoir_options(make_ball(3, Vec3::Zero(), R + w), w, K), mp, 0.05);
+  ParticleSet ps(3);
+  Rng rng(12), motion(13);
+  bp.apply(ps, 0.0, 0.0, rng);
+  std::vector<double> mean(K, 0.0);
+  double band_mass_mean = 0.0;
+  for (int k = 0; k < calls; ++k) {
+    for (Vec3& x : ps.positions()) x += sigma * Vec3(motion.normal(), motion.normal(), motion.normal());
+    bp.apply(ps, 0.0, 0.0, rng);
+    const std::vector<long> n = ball_sublayer_counts(ps, R, w, K);
+    for (std::size_t j = 0; j < static_cast<std::size_t>(K); ++j) {
+      mean[j] += static_cast<double>(n[j]) / calls;
+      band_mass_mean += static_cast<double>(n[j]) * mp / calls;
+    }
+    for (const Vec3& x : ps.positions()) ASSERT_LE(x.norm(), R + w);
+  }
+  double X_total = 0.0;
+  for (int j = 0; j < K; ++j) {
+    const double X = bp.reservoir_target_count(0, j, 0.0);
+    X_total += X;
+    EXPECT_NEAR(mean[static_cast<std::size_t>(j)], X, 1.0 / calls + 1e-9) << "sublayer " << j;
+  }
+  EXPECT_NEAR(band_mass_mean, g * shell_volume(R, R + w), K * mp / calls + 1e-9);
+  EXPECT_NEAR(X_total * mp, g * shell_volume(R, R + w), 1e-12);
+  const PatchLedger& led = bp.ledger()[0];
+  EXPECT_GT(led.absorbed, 0);
+  EXPECT_GE(led.removed, led.absorbed);
+  EXPECT_NEAR(ps.total_mass(), led.mass_inserted - led.mass_removed, 1e-9);
+  long inside = 0;
+  for (const Vec3& x : ps.positions())
+    if (x.norm() <= R) ++inside;
+  EXPECT_GT(inside, 100);  // the inflow stays in Omega
+}
+
+// Sublayer volumes: exact slabs for a box face extended straight out, exact
+// shells for a ball in a ball, Monte Carlo for a cylinder's lateral band
+// (the exterior layer volume includes the rim torus, which the extended
+// cylinder does not contain).
+TEST(BoundaryProjection, ReservoirSublayerVolumesPerGeometry) {
+  {
+    const double w = 0.12;
+    const Vec3 lo(0, 0, 0), hi(2, 1, 0.5);
+    const auto box = make_box(3, lo, hi);
+    Vec3 ext_lo = lo;
+    ext_lo.x() -= w;
+    BoundaryProjection bp(box, {condition(0, PatchKind::Dirichlet, constant(1.0))},
+                          reservoir_options(make_box(3, ext_lo, hi), w, 4), 1e-3, 0.05);
+    EXPECT_EQ(bp.reservoir_volume_rule(0), "slab");
+    for (int j = 0; j < 4; ++j) EXPECT_NEAR(bp.reservoir_sublayer_volume(0, j), 0.5 * w / 4, 1e-14);
+    // The same face in 2D: the "area" is the side length 1.
+    const auto sq = make_box(2, lo, hi);
+    BoundaryProjection bp2(sq, {condition(0, PatchKind::Dirichlet, constant(1.0))},
+                           reservoir_options(make_box(2, ext_lo, hi), w, 2), 1e-3, 0.05);
+    EXPECT_EQ(bp2.reservoir_volume_rule(0), "slab");
+    for (int j = 0; j < 2; ++j) EXPECT_NEAR(bp2.reservoir_sublayer_volume(0, j), w / 2, 1e-14);
+  }
+  {
+    const double R = 0.7, w = 0.2;
+    const auto disc = make_ball(2, Vec3(0.1, 0.2, 0), R);
+    BoundaryProjection bp(disc, {condition(0, PatchKind::Dirichlet, constant(1.0))},
+                          reservoir_options(make_ball(2, Vec3(0.1, 0.2, 0), R + w), w, 2), 1e-3, 0.05);
+    EXPECT_EQ(bp.reservoir_volume_rule(0), "exterior_shell");
+    EXPECT_NEAR(bp.reservoir_sublayer_volume(0, 0), kPi * ((R + 0.1) * (R + 0.1) - R * R), 1e-12);
+    EXPECT_NEAR(bp.reservoir_sublayer_volume(0, 1), kPi * ((R + w) * (R + w) - (R + 0.1) * (R + 0.1)), 1e-12);
+  }
+  {
+    const double R = 0.5, L = 2.0, w = 0.1;
+    const auto cyl = make_cylinder(Vec3(0, 0, 0), Vec3(0, 0, L), R);
+    BoundaryProjection bp(cyl, {condition(0, PatchKind::Dirichlet, constant(1.0))},
+                          reservoir_options(make_cylinder(Vec3(0, 0, 0), Vec3(0, 0, L), R + w), w, 2), 1e-3, 0.05);
+    EXPECT_EQ(bp.reservoir_volume_rule(0), "monte_carlo");
+    // Annuli of length L. Sampling box 1.2 x 1.2 x 2 = 2.88 with 1e6 points:
+    // standard error about 9e-4 for each of the two sublayers.
+    for (int j = 0; j < 2; ++j) {
+      const double r0 = R + w * j / 2, r1 = R + w * (j + 1) / 2;
+      EXPECT_NEAR(bp.reservoir_sublayer_volume(0, j), kPi * (r1 * r1 - r0 * r0) * L, 4e-3) << "sublayer " << j;
+    }
+  }
+}
+
+// reservoir_sublayers = 0: about one particle spacing (m_p / g)^(1/d) each.
+TEST(BoundaryProjection, ReservoirAutomaticSublayersAboutOneSpacing) {
+  const double R = 1.0, w = 0.15, g = 0.238732;
+  const auto ball = make_ball(3, Vec3::Zero(), R);
+  const auto ext = make_ball(3, Vec3::Zero(), R + w);
+  for (double mp : {1.0 / 1600.0, 1.0 / 20000.0, 1.0 / 200000.0}) {
+    BoundaryProjection bp(ball, {condition(0, PatchKind::Dirichlet, constant(g))}, reservoir_options(ext, w, 0), mp,
+                          0.05);
+    const double spacing = std::cbrt(mp / g);
+    EXPECT_EQ(bp.reservoir_sublayer_count(0), std::max(1L, std::lround(w / spacing))) << "m_p " << mp;
+  }
+  BoundaryProjection zero(ball, {condition(0, PatchKind::Dirichlet, constant(0.0))}, reservoir_options(ext, w, 0),
+                          1e-3, 0.05);
+  EXPECT_EQ(zero.reservoir_sublayer_count(0), 1);
+}
+
+// --------------------------------------------------------------------------- Neumann outlets
+
+namespace {
+
+// Pipe of Sec. 5.3 in miniature: outlet disc of radius 0.25 at the centre of cap_b (z = 2).
+DomainPtr pipe() {
+  return make_with_subpatches(make_cylinder(Vec3(0, 0, 0), Vec3(0, 0, 2), 0.5),
+                              {SubPatch{2, Vec3(0, 0, 2), 0.25, "outlet"}});
+}
+
+// Exact distance from x (inside the pipe) to the outlet disc.
+double distance_to_outlet(const Vec3& x) {
+  const double rho = std::hypot(x.x(), x.y());
+  return std::hypot(2.0 - x.z(), std::max(0.0, rho - 0.25));
+}
+
+ProjectionOptions nearest_options() {
+  ProjectionOptions o = options_with_b(0.1);
+  o.neumann_outflow = NeumannOutflow::NearestParticles;
+  return o;
+}
+
+}  // namespace
+
+// 7.3 particles owed in one step, 3 particles in B_l: those 3 go first, then
+// the 4 nearest the disc (brute force with the exact distance to the disc).
+TEST(BoundaryProjection, NeumannNearestParticlesRemovesNearestBeyondEmptyLayer) {
+  const double mp = 1e-3, dt = 0.01, b = 0.1;
+  const auto d = pipe();
+  const int outlet = d->patch_by_name("outlet");
+  const double f = 7.3 * mp / (d->patch_area(outlet) * dt);
+  BoundaryProjection bp(d, {condition(outlet, PatchKind::Neumann, constant(f))}, nearest_options(), mp, 0.05);
+
+  ParticleSet ps(3);
+  Rng fill(21);
+  std::vector<ParticleId> layer;
+  for (int k = 0; k < 3; ++k)
+    layer.push_back(ps.add(d->sample_layer_cell(outlet, b, LayerPart::Interior, fill), 0.05, mp));
+  std::vector<ParticleId> rest;
+  while (rest.size() < 600) {
+    const Vec3 x = d->sample_interior(fill);
+    if (x.z() < 1.8) rest.push_back(ps.add(x, 0.05, mp));
+  }
+  std::vector<double> dist_before(static_cast<std::size_t>(ps.next_id()), 0.0);
+  for (std::size_t p = 0; p < ps.size(); ++p)
+    dist_before[static_cast<std::size_t>(ps.ids()[p])] = distance_to_outlet(ps.positions()[p]);
+
+  Rng rng(22);
+  const PatchLedger call = bp.apply(ps, 0.0, dt, rng);
+  EXPECT_EQ(call.removed, 7);
+  EXPECT_EQ(call.deficit, 0.0);
+  EXPECT_NEAR(bp.ledger()[0].carry, -0.3 * mp, 1e-12);
+  for (ParticleId id : layer) EXPECT_LT(ps.index_of(id), 0) << "B_l particle " << id << " kept";
+  double farthest_removed = 0.0, nearest_kept = std::numeric_limits<double>::infinity();
+  int removed_rest = 0;
+  for (ParticleId id : rest) {
+    const double dist = dist_before[static_cast<std::size_t>(id)];
+    if (ps.index_of(id) < 0) {
+      ++removed_rest;
+      farthest_removed = std::max(farthest_removed, dist);
+    } else {
+      nearest_kept = std::min(nearest_kept, dist);
+    }
+  }
+  EXPECT_EQ(removed_rest, 4);
+  // The 4 removed are the 4 nearest, up to the point-cloud error of the
+  // distance for particles off the disc's axis (<< the gaps between them).
+  EXPECT_LE(farthest_removed, nearest_kept + 2e-3);
+  std::vector<double> sorted;
+  for (ParticleId id : rest) sorted.push_back(dist_before[static_cast<std::size_t>(id)]);
+  std::sort(sorted.begin(), sorted.end());
+  EXPECT_NEAR(farthest_removed, sorted[3], 2e-3);
+  const PatchLedger& led = bp.ledger()[0];
+  EXPECT_NEAR(led.mass_inserted - led.mass_removed + led.carry, led.flux_integral, 1e-12);
+}
+
+// 0.37 particles of outflow per step and no particle ever in B_l: the carry
+// stays in (-m_p, m_p) while particles exist, the ledger balances, and once
+// all are gone the debt is reported.
+TEST(BoundaryProjection, NeumannNearestParticlesCarryStaysBoundedUntilEmpty) {
+  const double mp = 1e-3, dt = 0.01;
+  const auto d = pipe();
+  const int outlet = d->patch_by_name("outlet");
+  const double f = 0.37 * mp / (d->patch_area(outlet) * dt);
+  BoundaryProjection bp(d, {condition(outlet, PatchKind::Neumann, constant(f))}, nearest_options(), mp, 0.05);
+  ParticleSet ps(3);
+  Rng fill(31);
+  while (ps.size() < 30) {
+    const Vec3 x = d->sample_interior(fill);
+    if (x.z() < 1.0) ps.add(x, 0.05, mp);
+  }
+  Rng rng(32);
+  int k = 0;
+  for (; k < 200 && !ps.empty(); ++k) {
+    const PatchLedger call = bp.apply(ps, k * dt, dt, rng);
+    const PatchLedger& led = bp.ledger()[0];
+    ASSERT_NEAR(led.mass_inserted - led.mass_removed + led.carry, led.flux_integral, 1e-12) << "step " << k;
+    ASSERT_EQ(static_cast<long>(ps.size()), 30 - led.removed) << "step " << k;
+    if (!ps.empty()) {
+      ASSERT_GT(led.carry, -mp) << "step " << k;
+      ASSERT_LT(led.carry, mp) << "step " << k;
+      ASSERT_EQ(led.deficit, 0.0) << "step " << k;
+      ASSERT_EQ(call.deficit, 0.0) << "step " << k;
+    }
+  }
+  ASSERT_TRUE(ps.empty());
+  EXPECT_EQ(k, 82);  // the 30th particle is owed after ceil(30 / 0.37) = 82 steps
+  for (int j = 0; j < 10; ++j) bp.apply(ps, (k + j) * dt, dt, rng);
+  const PatchLedger& led = bp.ledger()[0];
+  EXPECT_NEAR(led.flux_integral, -0.37 * mp * (k + 10), 1e-12);
+  EXPECT_NEAR(led.carry, led.flux_integral + 30 * mp, 1e-12);
+  EXPECT_GE(led.deficit, mp);
+  EXPECT_EQ(led.deficit, -led.carry);
+
+  // No particles at all from the start: the whole outflow is owed and reported.
+  const double f_empty = 2.5 * mp / (d->patch_area(outlet) * dt);
+  BoundaryProjection empty(d, {condition(outlet, PatchKind::Neumann, constant(f_empty))}, nearest_options(), mp, 0.05);
+  ParticleSet none(3);
+  const PatchLedger call = empty.apply(none, 0.0, dt, rng);
+  EXPECT_EQ(call.removed, 0);
+  EXPECT_NEAR(call.deficit, 2.5 * mp, 1e-15);
+  EXPECT_NEAR(empty.ledger()[0].carry, -2.5 * mp, 1e-15);
+}
+
+// While B_l supplies the outflow, NearestParticles is the papers' rule draw
+// for draw: the same particles leave.
+TEST(BoundaryProjection, NeumannNearestParticlesEqualsLayerWhileLayerSuffices) {
+  const double mp = 1e-3, dt = 0.01, b = 0.1;
+  const auto d = pipe();
+  const int outlet = d->patch_by_name("outlet");
+  const double f = 2.6 * mp / (d->patch_area(outlet) * dt);
+  ParticleSet start(3);
+  Rng fill(41);
+  for (int k = 0; k < 300; ++k) start.add(d->sample_layer_cell(outlet, b, LayerPart::Interior, fill), 0.05, mp);
+  for (int k = 0; k < 300; ++k) start.add(d->sample_interior(fill), 0.05, mp);
+  ParticleSet a = start, c = start;
+  BoundaryProjection layer(d, {condition(outlet, PatchKind::Neumann, constant(f))}, options_with_b(b), mp, 0.05);
+  BoundaryProjection nearest(d, {condition(outlet, PatchKind::Neumann, constant(f))}, nearest_options(), mp, 0.05);
+  Rng ra(42), rc(42);
+  for (int k = 0; k < 20; ++k) {
+    layer.apply(a, k * dt, dt, ra);
+    nearest.apply(c, k * dt, dt, rc);
+  }
+  EXPECT_EQ(layer.ledger()[0].removed, 52);
+  EXPECT_EQ(a.ids(), c.ids());
+  EXPECT_EQ(a.positions(), c.positions());
+  EXPECT_EQ(layer.ledger()[0].carry, nearest.ledger()[0].carry);
+}
+
+// --------------------------------------------------------------------------- absorb_exterior
+
+TEST(BoundaryProjection, AbsorbExteriorRemovesStrandedParticlesOnlyWhenOn) {
+  const double mp = 1e-3, b = 0.1;
+  const auto box = make_box(3, Vec3(0, 0, 0), Vec3(1, 1, 1));
+  auto populate = [&](ParticleSet& ps) {
+    std::vector<ParticleId> ids;
+    ids.push_back(ps.add(Vec3(-0.05, 0.5, 0.5), 0.05, mp));  // in B^ext of x-
+    ids.push_back(ps.add(Vec3(-0.3, 0.5, 0.5), 0.05, mp));   // beyond the layer, patch x-
+    ids.push_back(ps.add(Vec3(0.5, -0.05, 0.5), 0.05, mp));  // outside the no-flux y- wall
+    ids.push_back(ps.add(Vec3(0.5, 0.5, 0.5), 0.05, mp));    // inside
+    return ids;
+  };
+  ProjectionOptions on = options_with_b(b);
+  on.absorb_exterior = true;
+  // g = 0: B^int's target is 0 and it is empty, so only absorption can act.
+  BoundaryProjection papers(box, {condition(0, PatchKind::Dirichlet, constant(0.0))}, options_with_b(b), mp, 0.05);
+  BoundaryProjection absorbing(box, {condition(0, PatchKind::Dirichlet, constant(0.0))}, on, mp, 0.05);
+  Rng rng(51);
+  ParticleSet p1(3), p2(3);
+  const auto ids1 = populate(p1);
+  const auto ids2 = populate(p2);
+  const PatchLedger off_call = papers.apply(p1, 0.0, 0.1, rng);
+  EXPECT_EQ(off_call.removed + off_call.inserted + off_call.absorbed, 0);
+  EXPECT_EQ(p1.size(), 4u);
+  const PatchLedger on_call = absorbing.apply(p2, 0.0, 0.1, rng);
+  EXPECT_LT(p2.index_of(ids2[0]), 0);
+  EXPECT_LT(p2.index_of(ids2[1]), 0);
+  EXPECT_GE(p2.index_of(ids2[2]), 0);
+  EXPECT_GE(p2.index_of(ids2[3]), 0);
+  EXPECT_EQ(on_call.absorbed, 2);
+  EXPECT_EQ(on_call.removed, 2);
+  EXPECT_NEAR(on_call.mass_absorbed, 2 * mp, 1e-15);
+  EXPECT_EQ(absorbing.ledger()[0].absorbed, 2);
+  EXPECT_NEAR(absorbing.ledger()[0].mass_removed, 2 * mp, 1e-15);
+
+  // With nothing outside, absorb_exterior does not change the papers' layer
+  // projection draw for draw.
+  BoundaryProjection a(box, {condition(0, PatchKind::Dirichlet, constant(0.3))}, options_with_b(b), mp, 0.05);
+  BoundaryProjection c(box, {condition(0, PatchKind::Dirichlet, constant(0.3))}, on, mp, 0.05);
+  ParticleSet qa(3), qc(3);
+  Rng ra(52), rc(52);
+  for (int k = 0; k < 5; ++k) {
+    a.apply(qa, 0.0, 0.1, ra);
+    c.apply(qc, 0.0, 0.1, rc);
+    for (Vec3& x : qa.positions()) x.x() = std::max(x.x() + 0.02, 1e-3);
+    for (Vec3& x : qc.positions()) x.x() = std::max(x.x() + 0.02, 1e-3);
+  }
+  EXPECT_GT(qa.size(), 0u);
+  EXPECT_EQ(qa.positions(), qc.positions());
+  EXPECT_EQ(c.ledger()[0].absorbed, 0);
+}
+
+// --------------------------------------------------------------------------- checks of the new options
+
+TEST(BoundaryProjection, NewOptionsNameTheFieldWhenInvalid) {
+  const auto ball = make_ball(3, Vec3::Zero(), 1.0);
+  const auto ext = make_ball(3, Vec3::Zero(), 1.1);
+  const std::vector<PatchCondition> dir = {condition(0, PatchKind::Dirichlet, constant(1.0))};
+  auto build = [&](const ProjectionOptions& o, DomainPtr d = nullptr) {
+    BoundaryProjection bp(d ? d : ball, dir, o, 1e-3, 0.05);
+  };
+  expect_invalid([] { neumann_outflow_from_string("nearest"); }, "boundary.neumann_outflow = 'nearest'");
+  expect_invalid([] { dirichlet_mode_from_string("bath"); }, "boundary.dirichlet_mode = 'bath'");
+
+  ProjectionOptions o = nearest_options();
+  o.nearest_surface_points = 8;
+  expect_invalid([&] { o.validate(); }, "boundary.nearest_surface_points = 8");
+
+  const ProjectionOptions ok = reservoir_options(ext, 0.1, 2);
+  EXPECT_NO_THROW(build(ok));
+  ProjectionOptions r = ok;
+  r.reservoir_domain = nullptr;
+  expect_invalid([&] { build(r); }, "boundary.reservoir_domain");
+  for (double w : {0.0, -0.1, std::numeric_limits<double>::quiet_NaN()}) {
+    r = ok;
+    r.reservoir_thickness = w;
+    expect_invalid([&] { build(r); }, "boundary.reservoir_thickness");
+  }
+  r = ok;
+  r.reservoir_sublayers = -1;
+  expect_invalid([&] { build(r); }, "boundary.reservoir_sublayers = -1");
+  r = ok;
+  r.reservoir_volume_samples = 100;
+  expect_invalid([&] { build(r); }, "boundary.reservoir_volume_samples = 100");
+  r = ok;
+  r.absorb_exterior = true;
+  expect_invalid([&] { build(r); }, "boundary.absorb_exterior");
+  // The reservoir domain must match the domain and leave a band.
+  expect_invalid([&] { build(reservoir_options(make_ball(2, Vec3::Zero(), 1.1), 0.1, 2)); },
+                 "boundary.reservoir_domain dim");
+  expect_invalid([&] { build(reservoir_options(make_ball(3, Vec3::Zero(), 0.9), 0.1, 2)); },
+                 "must contain the domain");
+  expect_invalid([&] { build(reservoir_options(make_ball(3, Vec3::Zero(), 1.0), 0.1, 2)); }, "is empty");
+  expect_invalid([&] { build(reservoir_options(make_ball(3, Vec3::Zero(), 1.0), 0.1, 0)); }, "is empty");
+  // The reservoir fields are not looked at in Layer mode.
+  ProjectionOptions layer = options_with_b(0.1);
+  layer.reservoir_thickness = -1.0;
+  EXPECT_NO_THROW(build(layer));
+  BoundaryProjection papers(ball, dir, options_with_b(0.1), 1e-3, 0.05);
+  expect_invalid([&] { papers.reservoir_sublayer_count(0); },
+                 "must be a dirichlet condition with dirichlet_mode = reservoir");
+  BoundaryProjection res(ball, dir, ok, 1e-3, 0.05);
+  expect_invalid([&] { res.reservoir_sublayer_volume(0, 2); }, "reservoir sublayer");
+  expect_invalid([&] { res.reservoir_target_count(1, 0, 0.0); }, "boundary condition index");
 }

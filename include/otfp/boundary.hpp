@@ -6,6 +6,16 @@
 // mass of the prescribed outward flux f with B_l, carrying the fractional
 // remainder to the next step (METHOD-NOTES 2.6); no-flux patches only have the
 // barrier. Every inserted and removed particle is counted per patch.
+//
+// Options beyond the papers (issue 10; the defaults are the papers' treatment):
+// - NeumannOutflow::NearestParticles: an outlet whose B_l runs short removes
+//   the rest of the owed outflow from the particles nearest A_l.
+// - DirichletMode::Reservoir: a persistent band of thickness w outside each
+//   Dirichlet patch, split into K sublayers by depth, each held at its own
+//   count; particles beyond the reservoir domain are absorbed.
+// - absorb_exterior (Layer mode): particles outside Omega on a Dirichlet patch
+//   are absorbed instead of resting against the barrier.
+#include <cstddef>
 #include <functional>
 #include <string>
 #include <vector>
@@ -18,6 +28,23 @@ namespace otfp {
 enum class PatchKind { NoFlux, Dirichlet, Neumann };
 std::string to_string(PatchKind k);
 PatchKind patch_kind_from_string(const std::string& s);  // "no_flux" | "dirichlet" | "neumann"
+
+// What a Neumann outlet does when its cell B_l holds fewer particles than the
+// owed outflow (ProjectionOptions::neumann_outflow).
+enum class NeumannOutflow {
+  Layer,            // papers: remove only from B_l; the rest is carried as debt (deficit)
+  NearestParticles  // remove from B_l first, then the particles nearest A_l; debt only with no particles left
+};
+std::string to_string(NeumannOutflow m);
+NeumannOutflow neumann_outflow_from_string(const std::string& s);  // "layer" | "nearest_particles"
+
+// How a Dirichlet patch imposes g (ProjectionOptions::dirichlet_mode).
+enum class DirichletMode {
+  Layer,     // papers: fill / empty B_l^int to its target mass each step (Sec. 4.2)
+  Reservoir  // persistent exterior band of thickness w, each of K sublayers held at its count
+};
+std::string to_string(DirichletMode m);
+DirichletMode dirichlet_mode_from_string(const std::string& s);  // "layer" | "reservoir"
 
 // Scalar boundary data g(x, t) (density) or f(x, t) (outward mass flux per unit area and time).
 using BoundaryData = std::function<double(const Vec3& x, double t)>;
@@ -43,10 +70,19 @@ struct PatchCondition {
 // After apply() carry is in (-m_p, m_p) (particles of mass m_p) unless B_l ran
 // out of particles; then deficit = -carry (>= m_p) flags the owed outflow.
 // deficit is a view of carry, not extra mass: later steps remove it once
-// particles reach B_l.
+// particles reach B_l (with NeumannOutflow::NearestParticles: once any
+// particle exists).
+//
+// absorbed / mass_absorbed count the particles removed because they had left
+// the region a Dirichlet patch controls (beyond the reservoir domain in
+// Reservoir mode, outside Omega with absorb_exterior in Layer mode). They are
+// a subset of removed / mass_removed, so the total mass always changes by
+// mass_inserted - mass_removed.
 struct PatchLedger {
   long inserted = 0, removed = 0;
   double mass_inserted = 0.0, mass_removed = 0.0;
+  long absorbed = 0;           // removed particles that were beyond the controlled region (subset of removed)
+  double mass_absorbed = 0.0;  // their mass (subset of mass_removed)
   double flux_integral = 0.0;  // Neumann: integral over time of the inward mass flux (f < 0 gives > 0)
   double carry = 0.0;          // Neumann: mass owed but not yet moved (fractional remainder), in mass units
   double deficit = 0.0;        // Neumann outflow that found too few particles in B_l (mass), still owed
@@ -56,6 +92,16 @@ struct ProjectionOptions {
   double layer_b = 0.1;                                   // half-thickness b of the boundary layer
   DirichletTarget dirichlet_target = DirichletTarget::CellIntegral;  // target mass rule
   int quadrature_samples = 200000;                        // Monte Carlo points for non-constant g/f integrals
+  NeumannOutflow neumann_outflow = NeumannOutflow::Layer;  // where an outlet takes its outflow from
+  int nearest_surface_points = 4096;                      // fixed-seed points on A_l for particle-to-patch distances
+  DirichletMode dirichlet_mode = DirichletMode::Layer;    // papers' layer or persistent reservoir
+  DomainPtr reservoir_domain;                             // Reservoir: Omega_ext = Omega extended by w over Dirichlet
+  double reservoir_thickness = 0.0;                       // Reservoir: band thickness w (> 0)
+  int reservoir_sublayers = 0;                            // Reservoir: sublayers K per patch (0: ~one spacing each)
+  int reservoir_volume_samples = 1000000;                 // Reservoir: Monte Carlo points per patch, sublayer volumes
+  bool absorb_exterior = false;                           // Layer: remove particles outside Omega on Dirichlet patches
+  // Throws InvalidArgument naming the field, the value and the rule. The
+  // reservoir fields are checked only with dirichlet_mode = Reservoir.
   void validate() const;
 };
 
@@ -70,17 +116,83 @@ class BoundaryProjection {
   // receive or lose the flux mass of [t, t + dt]. Inserted particles get birth time t_new.
   // Returns the counts of this call (summed over patches); its carry and
   // deficit are the Neumann state after the call, summed over patches.
+  //
+  // Neumann, NearestParticles: the owed outflow is removed from random
+  // particles of B_l as in the papers; what B_l cannot supply is removed from
+  // the particles nearest A_l among those present at the start of the call
+  // (and not removed by another patch in this call), nearest first. The
+  // distance of x to A_l is |sd(x)| when the closest boundary point of x lies
+  // on A_l (exact), otherwise the distance to the nearest of
+  // nearest_surface_points fixed-seed points on A_l (an upper bound of the
+  // true distance, off by about the point spacing squared over the distance).
+  //
+  // Dirichlet, Reservoir: the band of patch l is
+  //   { x : sd_Omega(x) > 0, sd_ext(x) <= 0, patch_Omega(x) = l },
+  // sublayer j of it the points at depth sd_Omega in (j w / K, (j + 1) w / K].
+  //  1. Particles whose Omega patch is a Dirichlet patch and that lie outside
+  //     the reservoir domain (sd_ext > 0) are removed and counted as absorbed
+  //     (particles outside Omega at no-flux or Neumann patches are left alone).
+  //  2. Each sublayer is set to exactly T_j particles: surplus ones are deleted
+  //     uniformly at random, missing ones inserted uniformly in the sublayer.
+  //     T_j = floor(X_j + r_j), X_j = (integral of g over sublayer j) / m_p,
+  //     and the carry r_j <- X_j + r_j - T_j in [0, 1) (error diffusion), so
+  //     the count averaged over calls is X_j exactly: no mass is gained or lost
+  //     on average. A consequence: at rest a sublayer whose X_j is not an
+  //     integer alternates between floor(X_j) and ceil(X_j).
+  //  Particles inside Omega are never touched (those that left the band into
+  //  Omega are the inflow), and particles deeper than w inside the reservoir
+  //  domain are left alone. The count rule assumes particles of mass m_p.
+  //
+  // Dirichlet, Layer with absorb_exterior: particles outside Omega (sd > 0)
+  // whose closest boundary point is on a Dirichlet patch are removed and
+  // counted as absorbed before the papers' B_l^int projection, which is
+  // otherwise unchanged (it draws the same random numbers).
   PatchLedger apply(ParticleSet& particles, double t, double dt, Rng& rng);
 
   const std::vector<PatchLedger>& ledger() const { return ledger_; }  // indexed by position in conditions()
   const std::vector<PatchCondition>& conditions() const { return conditions_; }
   // Patches that the barrier must inflate by b (the Dirichlet buffers B^ext).
+  // In Reservoir mode the caller bounds the particles by reservoir_domain instead.
   std::vector<int> dirichlet_patches() const;
   // Target mass of B_l^int for a Dirichlet condition at time t.
   double dirichlet_target_mass(std::size_t condition_index, double t) const;
   const ProjectionOptions& options() const { return options_; }
 
+  // Reservoir mode, for a Dirichlet condition (others throw InvalidArgument):
+  // number of sublayers K, volume of sublayer j, its real target count X_j at
+  // time t, its carry r_j, and how the volumes were obtained: "exterior_shell"
+  // (differences of Domain::layer_cell_volume(patch, t, Exterior), exact for a
+  // ball in a concentric ball), "slab" (patch area x thickness, exact for a
+  // flat face extended straight out, e.g. a box face) or "monte_carlo".
+  int reservoir_sublayer_count(std::size_t condition_index) const;
+  double reservoir_sublayer_volume(std::size_t condition_index, int sublayer) const;
+  double reservoir_target_count(std::size_t condition_index, int sublayer, double t) const;
+  double reservoir_carry(std::size_t condition_index, int sublayer) const;
+  const std::string& reservoir_volume_rule(std::size_t condition_index) const;
+
  private:
+  // Per Dirichlet condition in Reservoir mode.
+  struct Reservoir {
+    int sublayers = 0;                          // K
+    Aabb box;                                   // sampling box around the band
+    std::vector<double> volume;                 // |sublayer j|
+    std::vector<std::vector<Vec3>> quadrature;  // uniform points of sublayer j (one for constant g)
+    std::vector<double> carry;                  // r_j in [0, 1), in particles
+    std::string volume_rule;                    // "exterior_shell" | "slab" | "monte_carlo"
+  };
+  void build_reservoir(std::size_t condition_index);
+  // Sublayer of depth sd (0 < sd <= w) among K, or -1.
+  int sublayer_of(double sd, int sublayers) const;
+  const Reservoir& reservoir_of(std::size_t condition_index) const;
+  // Sets every sublayer of condition i to its count (apply(), Reservoir mode).
+  void project_reservoir(std::size_t i, std::vector<std::vector<std::size_t>>& sublayer_members,
+                         ParticleSet& particles, double t_new, Rng& rng, PatchLedger& call,
+                         std::vector<std::size_t>& to_remove);
+  // Removes particles not yet taken, nearest A_l first, while condition i owes outflow.
+  void remove_nearest(std::size_t i, const ParticleSet& particles, const std::vector<double>& sd_of,
+                      const std::vector<int>& patch_of, std::vector<char>& taken, double threshold,
+                      const std::function<double(std::size_t)>& remove);
+
   DomainPtr domain_;
   std::vector<PatchCondition> conditions_;
   ProjectionOptions options_;
@@ -92,6 +204,12 @@ class BoundaryProjection {
   // quadrature_samples points, uniform in B_l^int for the cell integral or
   // projected onto A_l from uniform points of B_l for surface integrals.
   std::vector<std::vector<Vec3>> quadrature_points_;
+  std::vector<Reservoir> reservoirs_;  // per condition; sublayers = 0 unless Dirichlet in Reservoir mode
+  // NearestParticles: fixed-seed points on A_l per Neumann condition, and a
+  // sphere (centre, radius) around them for the distance lower bound.
+  std::vector<std::vector<Vec3>> surface_points_;
+  std::vector<Vec3> surface_center_;
+  std::vector<double> surface_radius_;
 };
 
 }  // namespace otfp
