@@ -139,7 +139,7 @@ TEST(Cli, SphereDirichletFillsAlongCranksCurve) {
   ASSERT_EQ(r.exit_code, 0) << r.error;
   const double b = r.summary["derived"]["layer_b"].get<double>();
   const double f_b = 1.0 - std::pow(1.0 - b, 3);
-  double dev = 0.0, layer_excess = 0.0, max_dev = 0.0;
+  double dev = 0.0, layer_excess = 0.0, max_dev = 0.0, blob_dev = 0.0;
   int rows = 0;
   for (const StepRecord& s : r.series) {
     if (s.step == 0) continue;
@@ -150,6 +150,13 @@ TEST(Cli, SphereDirichletFillsAlongCranksCurve) {
     max_dev = std::max(max_dev, std::abs(s.mass_ratio - crank));
     ASSERT_EQ(s.reference_values.size(), 4u);  // mass ratio and polar inertia, each reference and error
     EXPECT_NEAR(s.reference_values[1], s.mass_ratio - crank, 1e-14);
+    // M_rho: the blob density integrated over the ball (closed form), against the same curve.
+    ASSERT_TRUE(s.error_mass_blob.has_value());
+    EXPECT_NEAR(*s.error_mass_blob, s.mass_blob_ratio - crank, 1e-14);
+    EXPECT_NEAR(s.mass_blob_ratio, s.mass_blob / r.summary["derived"]["M_inf"].get<double>(), 1e-15);
+    EXPECT_LE(s.mass_blob, s.mass_total * (1.0 + 1e-14));
+    EXPECT_GE(s.mass_blob, 0.0);
+    blob_dev += std::abs(s.mass_blob_ratio - crank);
     layer_excess += std::max(0.0, f_b - crank);
     ++rows;
     EXPECT_GE(s.mass_ratio, crank - 0.1) << "lags Crank at t = " << s.t;
@@ -161,8 +168,15 @@ TEST(Cli, SphereDirichletFillsAlongCranksCurve) {
   layer_excess /= rows;
   EXPECT_LE(dev, layer_excess + 0.03) << "mean |M/M_inf - Crank| = " << dev << ", layer excess " << layer_excess;
   std::cout << "[ info ] mean |M/M_inf - Crank| = " << dev << " (layer excess " << layer_excess << ")\n";
+  std::cout << "[ info ] mean |M_rho/M_inf - Crank| = " << blob_dev / rows << "\n";
   // The summary reports the same largest deviation.
   EXPECT_NEAR(r.summary["reference"]["quantities"][0]["max_abs_error"].get<double>(), max_dev, 1e-12);
+  // M_rho's error statistics sit beside quantities[] (which keeps mass ratio, polar inertia).
+  ASSERT_TRUE(r.summary["reference"].contains("mass_blob"));
+  EXPECT_EQ(r.summary["reference"]["mass_blob"]["measured"], "mass_blob_ratio");
+  EXPECT_EQ(r.summary["reference"]["quantities"].size(), 2u);
+  EXPECT_EQ(r.summary["derived"]["mass_blob_method"], "closed_form");
+  EXPECT_DOUBLE_EQ(r.summary["final"]["mass_blob"].get<double>(), r.last.mass_blob);
 }
 
 // Pipe with equal inflow and outflow (outflow mild enough that the outlet cell
@@ -294,6 +308,8 @@ TEST(Cli, FreeSpaceRunsInOneTwoAndThreeDimensions) {
     EXPECT_EQ(r.last.n_inside, 100);
     EXPECT_NEAR(r.last.mass_total, r.series.front().mass_total, 1e-12);
     EXPECT_GT(r.last.polar_inertia, r.series.front().polar_inertia);
+    // No boundary: M_rho is the total mass.
+    EXPECT_NEAR(r.last.mass_blob, r.last.mass_total, 1e-12 * r.last.mass_total);
   }
 }
 
@@ -312,6 +328,8 @@ TEST(Cli, PeriodicBoxWithAdvectionAndSource) {
   EXPECT_EQ(r.last.n_particles, first.n_particles + r.last.inserted_total - r.last.removed_total);
   EXPECT_NEAR(r.last.mass_total / first.mass_total, std::exp(2.0 * 0.2), 0.1 * std::exp(2.0 * 0.2));
   EXPECT_EQ(r.summary["ledger"]["source"]["inserted"].get<long>(), r.last.inserted_total);
+  EXPECT_NEAR(r.last.mass_blob, r.last.mass_total, 1e-12 * r.last.mass_total);  // periodic: every blob counts
+  EXPECT_EQ(r.summary["derived"]["mass_blob_method"], "total");
 }
 
 TEST(Cli, SameSeedGivesIdenticalSeriesDifferentSeedDoesNot) {
@@ -341,6 +359,10 @@ TEST(Cli, OutputFilesAreCompleteAndVtkParses) {
                           "iterations,evaluations,",
                           0),
             0u);
+  // M_rho and, with the example's crank_sphere reference, its error.
+  EXPECT_NE(rows[0].find(",mass_ratio,polar_inertia_ratio,mass_blob,mass_blob_ratio,error_mass_blob,"),
+            std::string::npos)
+      << rows[0];
   const auto fields = [](const std::string& l) { return std::count(l.begin(), l.end(), ',') + 1; };
   for (const std::string& l : rows) {
     EXPECT_EQ(fields(l), fields(rows[0]));

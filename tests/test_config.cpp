@@ -181,6 +181,11 @@ TEST(Config, BadConfigurationsNameTheirKey) {
       {"malformed --set", kBase, {"physics.kappa"}, "--set"},
       {"crank_slab on a ball", kBase, {"diagnostics.reference=crank_slab"}, "diagnostics.reference_length"},
       {"periodic box under two list radii", "[domain]\ntype = \"periodic_box\"\n", {}, "domain.hi"},
+      {"width exponent zero", kBase, {"particles.width_exponent=0"}, "particles.width_exponent"},
+      {"width exponent above 2", kBase, {"particles.width_exponent=2.5"}, "particles.width_exponent"},
+      {"width exponent NaN", kBase, {"particles.width_exponent=nan"}, "particles.width_exponent"},
+      {"width reference n zero", kBase, {"particles.width_reference_n=0"}, "particles.width_reference_n"},
+      {"width reference n not an integer", kBase, {"particles.width_reference_n=1.5"}, "particles.width_reference_n"},
   };
   ASSERT_GE(cases.size(), 10u);
   const fs::path file = fs::temp_directory_path() / ("otfp_test_config_bad_" + std::to_string(::getpid()) + ".toml");
@@ -319,4 +324,60 @@ TEST(Config, CheckPrintsTheResolvedConfiguration) {
   EXPECT_EQ(j["config"]["particles"]["n_inf"], 800);
   // Table 2, n_inf = 800 (the table differs from (3 m_p / (4 pi rho))^(1/3) in its 8th digit).
   EXPECT_NEAR(j["derived"]["dr"].get<double>(), 0.084194539, 1e-7);
+}
+
+// particles.width_exponent q and particles.width_reference_n: s = s_rule(dr) (dr / dr_ref)^(q - 1).
+TEST(Config, WidthExponent) {
+  const Config def = parse_config_string("");
+  EXPECT_DOUBLE_EQ(def.particles.width_exponent, 1.0);
+  EXPECT_EQ(def.particles.width_reference_n, 400);
+  // Round trip.
+  const Config a = parse_config_string(kBase, {"particles.width_exponent=0.5", "particles.width_reference_n=800"});
+  const Config b = parse_config_string(to_toml(a));
+  EXPECT_EQ(to_toml(a), to_toml(b));
+  EXPECT_DOUBLE_EQ(b.particles.width_exponent, 0.5);
+  EXPECT_EQ(b.particles.width_reference_n, 800);
+  // q = 1 is the papers' width bit for bit, whatever width_reference_n.
+  const Simulation base(parse_config_string(kBase));
+  const Simulation one(parse_config_string(kBase, {"particles.width_exponent=1", "particles.width_reference_n=7"}));
+  const double dr = base.derived().dr;
+  EXPECT_EQ(one.derived().width_s, base.derived().width_s);
+  EXPECT_EQ(one.derived().beta, base.derived().beta);
+  EXPECT_EQ(base.derived().beta, 2.0 / (dr * dr));
+  EXPECT_EQ(base.derived().width_s, 1.0 / std::sqrt(2.0 / (dr * dr)));
+  // kBase: unit ball, cube rule, n_inf = 100; with n_ref = 800, dr / dr_ref = 2 and
+  // q = 1/2 gives s = (dr / sqrt(2)) 2^(-1/2) = dr / 2.
+  const Simulation half(a);
+  EXPECT_EQ(half.derived().dr, dr);
+  EXPECT_NEAR(half.derived().width_reference_dr, dr / 2.0, 1e-15);
+  EXPECT_NEAR(half.derived().width_s, dr / 2.0, 1e-15);
+  EXPECT_NEAR(half.derived().beta, 4.0 / (dr * dr), 1e-9 * half.derived().beta);
+  EXPECT_NEAR(half.derived().beta_true_spacing2, 4.0, 1e-12);  // cube rule: dr is the true spacing
+  EXPECT_NEAR(half.derived().dt_explicit, dr * dr, 1e-15);     // the step still follows dr
+  const nlohmann::json j = half.describe();
+  EXPECT_EQ(j["config"]["particles"]["width_exponent"], 0.5);
+  EXPECT_EQ(j["config"]["particles"]["width_reference_n"], 800);
+  EXPECT_NEAR(j["derived"]["width_s"].get<double>(), dr / 2.0, 1e-15);
+  // The one-line message names the key, the value and the rule.
+  EXPECT_EQ(rejection(kBase, {"particles.width_exponent=2.5"}).rfind("particles.width_exponent = 2.5: must be in (0, 2]", 0),
+            0u);
+  EXPECT_EQ(rejection(kBase, {"particles.width_reference_n=0"}), "particles.width_reference_n = 0: must be >= 1");
+  EXPECT_EQ(rejection(kBase, {"particles.width_exponent=2"}), "");
+}
+
+// The sphere-radius rule is 1.61 times below the true spacing: beta dr_true^2 = 2 x 2.60
+// (docs/configuration.md, "Spacing and width").
+TEST(Config, ExamplesBetaTimesTrueSpacingSquared) {
+  const std::vector<std::pair<std::string, double>> expect = {
+      {"sphere_dirichlet.toml", 5.1970}, {"box_mixed.toml", 5.1970},       {"pipe_neumann.toml", 2.5985},
+      {"free_space_heat.toml", 2.0},     {"periodic_cosine.toml", 2.0},    {"sphere_injection.toml", 5.1970},
+      {"square_pipe_occlusion.toml", 2.5985}};
+  for (const auto& [name, value] : expect) {
+    const Simulation s(parse_config_file(kSource / "examples" / name));
+    EXPECT_NEAR(s.derived().beta_true_spacing2, value, 1e-4) << name;
+    EXPECT_NEAR(s.derived().true_spacing, std::pow(s.derived().volume / static_cast<double>(s.config().particles.n_inf),
+                                                   1.0 / s.config().run.dim),
+                1e-15)
+        << name;
+  }
 }

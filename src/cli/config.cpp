@@ -57,6 +57,8 @@ const std::vector<KeySpec>& schema() {
       {"particles.mass", Kind::Float, {}},
       {"particles.spacing_rule", Kind::String, {"cube", "sphere_radius"}},
       {"particles.beta_factor", Kind::Float, {}},
+      {"particles.width_exponent", Kind::Float, {}},
+      {"particles.width_reference_n", Kind::Int, {}},
       {"particles.layer_b", Kind::Float, {}},
       {"particles.length_L", Kind::Float, {}},
       {"particles.dirichlet_target", Kind::String, {"cell_integral", "paper_eq34"}},
@@ -478,6 +480,8 @@ Config to_config(const toml::table& root) {
     r.get("mass", c.particles.mass);
     r.get("spacing_rule", c.particles.spacing_rule);
     r.get("beta_factor", c.particles.beta_factor);
+    r.get("width_exponent", c.particles.width_exponent);
+    r.get("width_reference_n", c.particles.width_reference_n);
     r.get("layer_b", c.particles.layer_b);
     r.get("length_L", c.particles.length_L);
     r.get("dirichlet_target", c.particles.dirichlet_target);
@@ -616,6 +620,10 @@ void validate(const Config& c) {
   if (pa.spacing_rule == "sphere_radius" && r.dim != 3)
     throw ConfigError("particles.spacing_rule", quoted(pa.spacing_rule), "needs run.dim = 3 (use \"cube\")");
   positive(pa.beta_factor, "particles.beta_factor");
+  if (!(pa.width_exponent > 0.0 && pa.width_exponent <= 2.0))
+    throw ConfigError("particles.width_exponent", shown(pa.width_exponent),
+                      "must be in (0, 2] (s = s_rule(dr) (dr / dr_ref)^(q - 1); 1: the papers' fixed beta dr^2)");
+  at_least<std::int64_t>(pa.width_reference_n, 1, "particles.width_reference_n");
   non_negative(pa.layer_b, "particles.layer_b");
   non_negative(pa.length_L, "particles.length_L");
   if (pa.fill_count && pa.fill_mass)
@@ -788,6 +796,8 @@ std::string to_toml(const Config& c) {
   toml::table par{{"n_inf", p.n_inf},
                   {"spacing_rule", p.spacing_rule},
                   {"beta_factor", p.beta_factor},
+                  {"width_exponent", p.width_exponent},
+                  {"width_reference_n", p.width_reference_n},
                   {"layer_b", p.layer_b},
                   {"length_L", p.length_L},
                   {"dirichlet_target", p.dirichlet_target},

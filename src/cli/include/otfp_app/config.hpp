@@ -62,6 +62,8 @@ struct ParticlesSection {
   std::optional<double> mass;
   std::string spacing_rule = "cube";  // cube | sphere_radius
   double beta_factor = 2.0;
+  double width_exponent = 1.0;            // q: s = s_rule(dr) (dr / dr_ref)^(q - 1), in (0, 2]
+  std::int64_t width_reference_n = 400;   // n at which dr_ref is taken (>= 1)
   double layer_b = 0.0;   // 0: sqrt(length_L dr)
   double length_L = 0.0;  // 0: from the domain
   std::string dirichlet_target = "cell_integral";  // cell_integral | paper_eq34

@@ -43,6 +43,9 @@ struct Derived {
   double dr = 0.0;           // mean spacing (37) or the sphere-radius rule
   double beta = 0.0;         // beta_factor / dr^2
   double width_s = 0.0;      // beta^-1/2
+  double width_reference_dr = 0.0;  // spacing of the same rule at particles.width_reference_n
+  double true_spacing = 0.0;        // (|Omega|/n_inf)^(1/d), whatever the spacing rule
+  double beta_true_spacing2 = 0.0;  // beta * true_spacing^2 (2 for beta_factor 2 with "cube", q = 1)
   double length_L = 0.0;     // L of b = sqrt(L dr)
   double layer_b = 0.0;      // boundary-layer half-thickness b
   double dt_explicit = 0.0;  // dr^2 / kappa (39)
@@ -80,6 +83,9 @@ struct StepRecord {
   double mean_age = 0.0, max_age = 0.0;
   double l1_mass = 0.0, l1_polar_inertia = 0.0;  // running (46a)-(46b), rectangle rule, all particles
   double mass_ratio = 0.0;                        // mass_inside / M_inf
+  double mass_blob = 0.0;                         // M_rho: the blob density integrated over Omega
+  double mass_blob_ratio = 0.0;                   // mass_blob / M_inf
+  std::optional<double> error_mass_blob;          // mass_blob_ratio - Crank's M/M_inf (crank_* references)
   std::optional<double> polar_inertia_ratio;      // polar_inertia / J_inf
   std::optional<double> reference;                // the primary reference value (first reference column)
   std::vector<double> reference_values;           // the reference columns of series.csv, in order
