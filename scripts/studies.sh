@@ -4,7 +4,7 @@
 #
 #   scripts/studies.sh STUDY [--smoke | --full] [--jobs N] [--out DIR]
 #
-# STUDY: implicit_explicit | variable_width | diffusivity | convergence | all
+# STUDY: implicit_explicit | variable_width | diffusivity | convergence | boundaries | all
 #   default sizes: what docs/validation.md shows (minutes on 2 cores)
 #   --smoke      : tiny sizes, seconds (CI runs these through ctest)
 #   --full       : the papers' larger sizes (hours)
@@ -99,10 +99,37 @@ convergence() {
   sweep convergence/pipe "$ex/pipe_neumann.toml" --timeout 3600 --set run.t_end=$t_pipe --vary particles.n_inf=$pipe
 }
 
+# Study 5: the papers' boundary treatment against the converging one (issue 10),
+# same sizes and horizons as study 4 except the pipe (T = 6). "papers" is the
+# papers' spacing rule and treatment; "best" the true spacing with images at
+# no-flux walls, an odd-profile Dirichlet reservoir and outlets that deliver.
+papers_keys=(--set particles.spacing_rule=sphere_radius --set treatment.no_flux=barrier
+             --set treatment.dirichlet=layer --set treatment.neumann_outflow=layer)
+best_keys=(--set particles.spacing_rule=cube --set treatment.no_flux=images --set treatment.dirichlet=reservoir
+           --set treatment.reservoir_profile=odd --set treatment.neumann_outflow=nearest)
+boundaries() {
+  local sphere="400,800,1600,3200,6400" box="400,800,1600,3200" pipe="1000,2000,4000"
+  local t_sphere=1 t_box=4 t_pipe=6
+  case $size in
+    smoke) sphere="50,100"; box="200,300"; pipe="100,200"; t_sphere=0.05; t_box=0.2; t_pipe=0.02 ;;
+    full) sphere="400,800,1600,3200,6400,12800,25600"; box="400,800,1600,3200,6400"; pipe="1000,2000,4000,8000" ;;
+  esac
+  for variant in papers best; do
+    local -n keys="${variant}_keys"
+    sweep boundaries/sphere_$variant "$ex/sphere_dirichlet.toml" --timeout 5400 --set run.t_end=$t_sphere \
+      "${keys[@]}" --vary particles.n_inf=$sphere
+    # b = sqrt(L dr) with L = 1: the true spacing at n_inf = 400 makes sqrt(2 dr) wider than half the box.
+    sweep boundaries/box_$variant "$ex/box_mixed.toml" --timeout 5400 --set run.t_end=$t_box \
+      --set particles.length_L=1 "${keys[@]}" --vary particles.n_inf=$box
+    sweep boundaries/pipe_$variant "$ex/pipe_neumann.toml" --timeout 5400 --set run.t_end=$t_pipe \
+      "${keys[@]}" --vary particles.n_inf=$pipe
+  done
+}
+
 case "$study" in
-  implicit_explicit | variable_width | diffusivity | convergence) "$study" ;;
-  all) implicit_explicit; variable_width; diffusivity; convergence ;;
-  *) echo "usage: scripts/studies.sh implicit_explicit|variable_width|diffusivity|convergence|all [--smoke|--full] [--jobs N] [--out DIR]" >&2; exit 2 ;;
+  implicit_explicit | variable_width | diffusivity | convergence | boundaries) "$study" ;;
+  all) implicit_explicit; variable_width; diffusivity; convergence; boundaries ;;
+  *) echo "usage: scripts/studies.sh implicit_explicit|variable_width|diffusivity|convergence|boundaries|all [--smoke|--full] [--jobs N] [--out DIR]" >&2; exit 2 ;;
 esac
 
 if [[ $size != smoke ]]; then

@@ -117,6 +117,15 @@ DirichletMode dirichlet_mode_from_string(const std::string& s) {
   return DirichletMode::Layer;
 }
 
+std::string to_string(ReservoirProfile m) { return m == ReservoirProfile::Uniform ? "uniform" : "odd"; }
+
+ReservoirProfile reservoir_profile_from_string(const std::string& s) {
+  if (s == "uniform") return ReservoirProfile::Uniform;
+  if (s == "odd") return ReservoirProfile::Odd;
+  require(false, "boundary.reservoir_profile", s, "must be one of uniform, odd");
+  return ReservoirProfile::Uniform;
+}
+
 void ProjectionOptions::validate() const {
   require(std::isfinite(layer_b) && layer_b > 0.0, "boundary.layer_b", layer_b, "must be finite and > 0");
   require(quadrature_samples >= 1000, "boundary.quadrature_samples", quadrature_samples, "must be >= 1000");
@@ -358,6 +367,34 @@ void BoundaryProjection::build_reservoir(std::size_t i) {
     r.volume = mc;
     r.volume_rule = "monte_carlo";
   }
+  if (options_.reservoir_profile == ReservoirProfile::Odd) {
+    // Mirror image of sublayer j inside Omega: the points whose reflection
+    // across the patch's wall lies in sublayer j. Volumes by the same fixed-seed
+    // Monte Carlo over the layer box inside Omega (a plane keeps volumes: there
+    // they equal the band's; a sphere's inner shells are smaller).
+    r.wall = domain_->patch_wall(c.patch);
+    require(r.wall != nullptr, "boundary.reservoir_profile", "odd",
+            "needs a wall surface for patch " + name + " (this domain has none)");
+    const Aabb inner = domain_->layer_bounding_box(c.patch, w);
+    const Aabb dom = domain_->bounding_box();
+    const Aabb mbox{inner.lo.cwiseMax(dom.lo), inner.hi.cwiseMin(dom.hi)};
+    const double mbox_volume = box_measure(mbox, d);
+    std::vector<long> mhits(K, 0);
+    Rng mrng(kReservoirSeed + 0x9e37ULL + static_cast<std::uint64_t>(c.patch));
+    for (int k = 0; k < samples; ++k) {
+      const Vec3 x = uniform_in(mbox, d, mrng);
+      if (domain_->signed_distance(x) > 0.0) continue;
+      const int jj = sublayer_of(band_depth(r.wall->reflect(x, nullptr)), sublayers);
+      if (jj >= 0) ++mhits[static_cast<std::size_t>(jj)];
+    }
+    r.mirror_volume.assign(K, 0.0);
+    for (std::size_t jj = 0; jj < K; ++jj) {
+      r.mirror_volume[jj] = mbox_volume * static_cast<double>(mhits[jj]) / static_cast<double>(samples);
+      require(r.mirror_volume[jj] > 0.0, "boundary.reservoir_profile", "odd",
+              "the mirror image of a sublayer of patch " + name + " inside Omega is empty (domain too thin?)");
+    }
+    r.mirror_mass.assign(K, 0.0);
+  }
 }
 
 const BoundaryProjection::Reservoir& BoundaryProjection::reservoir_of(std::size_t condition_index) const {
@@ -467,6 +504,24 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
   if (any_outflow_fallback) {
     sd_of.resize(n0);
     patch_of.resize(n0);
+  }
+  if (reservoir_mode && options_.reservoir_profile == ReservoirProfile::Odd) {
+    // Particle mass in the mirror image of each sublayer (odd profile).
+    const double w = options_.reservoir_thickness;
+    for (std::size_t i = 0; i < nc; ++i) {
+      Reservoir& r = reservoirs_[i];
+      if (!r.wall) continue;
+      std::fill(r.mirror_mass.begin(), r.mirror_mass.end(), 0.0);
+      for (std::size_t p = 0; p < n0; ++p) {
+        const Vec3& x = particles.positions()[p];
+        if (r.wall->distance(x) < -w) continue;
+        if (domain_->signed_distance(x) > 0.0) continue;
+        const BoundaryQuery q = domain_->query(r.wall->reflect(x, nullptr));
+        if (q.patch != conditions_[i].patch || !(q.signed_distance > 0.0) || q.signed_distance > w) continue;
+        const int j = sublayer_of(q.signed_distance, r.sublayers);
+        if (j >= 0) r.mirror_mass[static_cast<std::size_t>(j)] += particles.masses()[p];
+      }
+    }
   }
   if (any_active) {
     for (std::size_t p = 0; p < n0; ++p) {
@@ -622,7 +677,15 @@ void BoundaryProjection::project_reservoir(std::size_t i, std::vector<std::vecto
   for (std::size_t j = 0; j < K; ++j) {
     // Error diffusion: T_j = floor(X_j + r_j), r_j <- X_j + r_j - T_j, so
     // the mean of T_j over calls is X_j. A negative target acts as zero.
-    const double v = reservoir_target_count(i, static_cast<int>(j), t_new) + r.carry[j];
+    double x_j = reservoir_target_count(i, static_cast<int>(j), t_new);
+    if (r.wall && !r.mirror_volume.empty()) {
+      // Odd parity about g: density 2 g - rho_in, clamped to [0, 2 g].
+      const double rho_in = r.mirror_mass[j] / r.mirror_volume[j];
+      const double g_mass = x_j * mp;  // g |sublayer j|
+      const double want = std::clamp(2.0 * g_mass - rho_in * r.volume[j], 0.0, 2.0 * g_mass);
+      x_j = want / mp;
+    }
+    const double v = x_j + r.carry[j];
     long target = 0;
     if (v > 0.0) {
       target = static_cast<long>(std::floor(v + kCountTolerance));

@@ -109,6 +109,27 @@ std::vector<MirrorWallPtr> mirror_walls(const Domain& domain, const std::vector<
   return closed;
 }
 
+std::size_t reflect_inside(const std::vector<MirrorWallPtr>& walls, std::vector<Vec3>& x) {
+  std::size_t moved = 0;
+  for (Vec3& p : x) {
+    bool any = false;
+    // A few passes: at an edge or a corner one reflection can cross another wall.
+    for (int pass = 0; pass < 4; ++pass) {
+      bool crossed = false;
+      for (const auto& w : walls) {
+        if (w->distance(p) > 0.0) {
+          p = w->reflect(p, nullptr);
+          crossed = true;
+        }
+      }
+      if (!crossed) break;
+      any = true;
+    }
+    if (any) ++moved;
+  }
+  return moved;
+}
+
 WallImages::WallImages(std::vector<MirrorWallPtr> walls, int max_order) : walls_(std::move(walls)), max_order_(max_order) {
   require(walls_.size() <= 255, "number of mirror walls", static_cast<double>(walls_.size()), "must be <= 255");
   require(max_order >= 1 && max_order <= 3, "max_order", max_order, "must be 1, 2 or 3");
@@ -122,25 +143,39 @@ void WallImages::select(const std::vector<Vec3>& x, const std::vector<double>& r
   chain_.clear();
   if (!active()) return;
   std::vector<std::uint8_t> near;
+  std::vector<double> depth;
   for (std::size_t p = 0; p < x.size(); ++p) {
     near.clear();
-    for (std::size_t w = 0; w < walls_.size(); ++w)
-      if (walls_[w]->distance(x[p]) >= -reach[p]) near.push_back(static_cast<std::uint8_t>(w));
-    // Every nonempty subset of the nearby walls, in increasing wall order.
+    depth.clear();
+    for (std::size_t w = 0; w < walls_.size(); ++w) {
+      const double d = walls_[w]->distance(x[p]);
+      if (d >= -reach[p]) {
+        near.push_back(static_cast<std::uint8_t>(w));
+        depth.push_back(std::max(-d, 0.0));
+      }
+    }
+    // Every nonempty subset of the nearby walls, in increasing wall order,
+    // whose composed image can come within reach of the domain: across
+    // orthogonal planes at depths d_i that image is sqrt(sum d_i^2) away from
+    // the domain's edge or corner (for other pairs of walls it is farther,
+    // so the rule keeps a superset of the images that matter).
     const std::size_t k = std::min<std::size_t>(near.size(), 16);
+    const double reach_sq = reach[p] * reach[p];
     for (std::uint32_t mask = 1; mask < (1u << k); ++mask) {
       std::array<std::uint8_t, 3> c{0, 0, 0};
       int order = 0;
-      bool too_many = false;
+      bool skip = false;
+      double dist_sq = 0.0;
       for (std::size_t j = 0; j < k; ++j) {
         if (!(mask & (1u << j))) continue;
         if (order == max_order_) {
-          too_many = true;
+          skip = true;
           break;
         }
+        dist_sq += depth[j] * depth[j];
         c[static_cast<std::size_t>(order++)] = near[j];
       }
-      if (too_many) continue;
+      if (skip || dist_sq > reach_sq) continue;
       source_.push_back(static_cast<std::uint32_t>(p));
       order_.push_back(static_cast<std::uint8_t>(order));
       chain_.push_back(c);

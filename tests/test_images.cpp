@@ -349,3 +349,17 @@ TEST(DomainExtension, MovesOnlyTheListedPatchesOutward) {
   auto csg = make_difference(box, make_ball(3, Vec3(1.0, 0.5, 0.5), 0.2));
   EXPECT_THROW(csg->extended({0}, w), InvalidArgument);
 }
+
+TEST(ReflectInside, PutsParticlesBackAcrossEveryWallTheyCrossed) {
+  auto box = make_box(3, Vec3::Zero(), Vec3(2.0, 1.0, 1.0));
+  const auto walls = mirror_walls(*box);
+  std::vector<Vec3> x = {Vec3(0.5, 0.5, 0.5), Vec3(-0.1, 0.5, 0.5), Vec3(2.05, -0.02, 1.03)};
+  EXPECT_EQ(reflect_inside(walls, x), 2u);
+  EXPECT_NEAR((x[0] - Vec3(0.5, 0.5, 0.5)).norm(), 0.0, 0.0);
+  EXPECT_NEAR((x[1] - Vec3(0.1, 0.5, 0.5)).norm(), 0.0, 1e-15);
+  EXPECT_NEAR((x[2] - Vec3(1.95, 0.02, 0.97)).norm(), 0.0, 1e-14);  // a corner: three reflections
+  auto ball = make_ball(3, Vec3::Zero(), 1.0);
+  std::vector<Vec3> y = {Vec3(0.0, 1.2, 0.0)};
+  EXPECT_EQ(reflect_inside(mirror_walls(*ball), y), 1u);
+  EXPECT_NEAR((y[0] - Vec3(0.0, 0.8, 0.0)).norm(), 0.0, 1e-15);  // r* = 2R - r
+}

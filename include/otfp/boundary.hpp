@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "otfp/geometry.hpp"
+#include "otfp/images.hpp"
 #include "otfp/particles.hpp"
 
 namespace otfp {
@@ -45,6 +46,16 @@ enum class DirichletMode {
 };
 std::string to_string(DirichletMode m);
 DirichletMode dirichlet_mode_from_string(const std::string& s);  // "layer" | "reservoir"
+
+// The count each reservoir sublayer is held at (ProjectionOptions::reservoir_profile).
+enum class ReservoirProfile {
+  Uniform,  // density g in every sublayer
+  Odd       // density 2 g - rho_in, rho_in the particle density of the sublayer's mirror image
+            // inside Omega (clamped to [0, 2 g]): u - g odd across the face, so the blob
+            // density at the face is g while the interior next to it is not yet at g
+};
+std::string to_string(ReservoirProfile m);
+ReservoirProfile reservoir_profile_from_string(const std::string& s);  // "uniform" | "odd"
 
 // Scalar boundary data g(x, t) (density) or f(x, t) (outward mass flux per unit area and time).
 using BoundaryData = std::function<double(const Vec3& x, double t)>;
@@ -99,6 +110,7 @@ struct ProjectionOptions {
   double reservoir_thickness = 0.0;                       // Reservoir: band thickness w (> 0)
   int reservoir_sublayers = 0;                            // Reservoir: sublayers K per patch (0: ~one spacing each)
   int reservoir_volume_samples = 1000000;                 // Reservoir: Monte Carlo points per patch, sublayer volumes
+  ReservoirProfile reservoir_profile = ReservoirProfile::Uniform;  // Reservoir: g, or odd parity about g
   bool absorb_exterior = false;                           // Layer: remove particles outside Omega on Dirichlet patches
   // Throws InvalidArgument naming the field, the value and the rule. The
   // reservoir fields are checked only with dirichlet_mode = Reservoir.
@@ -179,6 +191,11 @@ class BoundaryProjection {
     std::vector<std::vector<Vec3>> quadrature;  // uniform points of sublayer j (one for constant g)
     std::vector<double> carry;                  // r_j in [0, 1), in particles
     std::string volume_rule;                    // "exterior_shell" | "slab" | "monte_carlo"
+    // Odd profile: the wall of the patch, the volume of each sublayer's
+    // mirror image inside Omega and the particle mass found there.
+    std::shared_ptr<const MirrorWall> wall;
+    std::vector<double> mirror_volume;
+    std::vector<double> mirror_mass;
   };
   void build_reservoir(std::size_t condition_index);
   // Sublayer of depth sd (0 < sd <= w) among K, or -1.

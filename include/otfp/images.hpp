@@ -55,6 +55,13 @@ class Domain;
 // InvalidArgument naming the patch when the domain has no wall for one (CSG).
 std::vector<MirrorWallPtr> mirror_walls(const Domain& domain, const std::vector<int>& open_patches = {});
 
+// Moves every point that lies beyond one of the walls back across it
+// (specular reflection, the no-flux condition of a reflected random walk):
+// with images, a blob outside a wall is pushed further out by its own image
+// inside, so a particle that crossed must be put back, not left to the
+// barrier. Returns how many points moved; their mass stays where it was counted.
+std::size_t reflect_inside(const std::vector<MirrorWallPtr>& walls, std::vector<Vec3>& x);
+
 // The image blobs of a set of walls.
 class WallImages {
  public:
@@ -66,10 +73,10 @@ class WallImages {
   const std::vector<MirrorWallPtr>& walls() const { return walls_; }
 
   // Chooses the images: particle p is mirrored across every wall w with
-  // distance_w(x_p) >= -reach[p] (and across every nonempty subset of those
-  // walls, up to max_order). reach[p] should be the particle's list radius
-  // r_c(s_p) + skin: farther from the wall its image is beyond the cut-off of
-  // every point on the domain side.
+  // distance_w(x_p) >= -reach[p], and across every subset S of those walls
+  // (up to max_order, composed) with sum over S of depth_w^2 <= reach[p]^2.
+  // reach[p] should be the particle's list radius r_c(s_p) + skin: farther in,
+  // its image is beyond the cut-off of every point on the domain side.
   void select(const std::vector<Vec3>& x, const std::vector<double>& reach);
   // Number of images chosen by the last select().
   std::size_t size() const { return source_.size(); }

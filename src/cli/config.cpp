@@ -96,6 +96,13 @@ const std::vector<KeySpec>& schema() {
       {"solver.barrier_stiffness", Kind::Float, {}},
       {"solver.kernel_tolerance", Kind::Float, {}},
       {"solver.skin_factor", Kind::Float, {}},
+      {"treatment.no_flux", Kind::String, {"barrier", "images"}},
+      {"treatment.dirichlet", Kind::String, {"layer", "reservoir"}},
+      {"treatment.reservoir_width", Kind::Float, {}},
+      {"treatment.reservoir_sublayers", Kind::Int, {}},
+      {"treatment.reservoir_profile", Kind::String, {"uniform", "odd"}},
+      {"treatment.neumann_outflow", Kind::String, {"layer", "nearest"}},
+      {"treatment.stranded", Kind::String, {"keep", "absorb"}},
       {"diagnostics.center", Kind::Point, {}},
       {"diagnostics.M_inf", Kind::Float, {}},
       {"diagnostics.J_inf", Kind::Float, {}},
@@ -107,7 +114,7 @@ const std::vector<KeySpec>& schema() {
 }
 
 const std::vector<std::string> kSections = {"run", "domain", "particles", "physics", "boundary", "solver",
-                                            "diagnostics"};
+                                            "treatment", "diagnostics"};
 
 const KeySpec* find_spec(const std::string& path) {
   for (const KeySpec& k : schema())
@@ -534,6 +541,17 @@ Config to_config(const toml::table& root) {
     r.get("skin_factor", s.skin_factor);
   }
   {
+    Reader r(section(root, "treatment"), "treatment.");
+    TreatmentSection& t = c.treatment;
+    r.get("no_flux", t.no_flux);
+    r.get("dirichlet", t.dirichlet);
+    r.get("reservoir_width", t.reservoir_width);
+    r.get("reservoir_sublayers", t.reservoir_sublayers);
+    r.get("reservoir_profile", t.reservoir_profile);
+    r.get("neumann_outflow", t.neumann_outflow);
+    r.get("stranded", t.stranded);
+  }
+  {
     Reader r(section(root, "diagnostics"), "diagnostics.");
     r.get("center", c.diagnostics.center);
     r.get("M_inf", c.diagnostics.M_inf);
@@ -708,6 +726,14 @@ void validate(const Config& c) {
   positive(s.skin_factor, "solver.skin_factor");
 
   const DiagnosticsSection& g = c.diagnostics;
+  const TreatmentSection& t = c.treatment;
+  positive(t.reservoir_width, "treatment.reservoir_width");
+  if (t.reservoir_width > 10.0)
+    throw ConfigError("treatment.reservoir_width", fmt::format("{}", t.reservoir_width),
+                      "must be <= 10 (kernel cut-offs)");
+  if (t.reservoir_sublayers < 0 || t.reservoir_sublayers > 1000)
+    throw ConfigError("treatment.reservoir_sublayers", std::to_string(t.reservoir_sublayers),
+                      "must be in [0, 1000] (0: about one spacing per sublayer)");
   if (g.M_inf) positive(*g.M_inf, "diagnostics.M_inf");
   if (g.J_inf) positive(*g.J_inf, "diagnostics.J_inf");
   if (g.reference_radius) positive(*g.reference_radius, "diagnostics.reference_radius");
@@ -846,6 +872,14 @@ std::string to_toml(const Config& c) {
                   {"skin_factor", s.skin_factor}};
   if (s.barrier_stiffness) sol.insert("barrier_stiffness", *s.barrier_stiffness);
   root.insert("solver", std::move(sol));
+  const TreatmentSection& tr = c.treatment;
+  root.insert("treatment", toml::table{{"no_flux", tr.no_flux},
+                                       {"dirichlet", tr.dirichlet},
+                                       {"reservoir_width", tr.reservoir_width},
+                                       {"reservoir_sublayers", tr.reservoir_sublayers},
+                                       {"reservoir_profile", tr.reservoir_profile},
+                                       {"neumann_outflow", tr.neumann_outflow},
+                                       {"stranded", tr.stranded}});
   const DiagnosticsSection& g = c.diagnostics;
   toml::table dia{{"reference", g.reference}};
   if (g.center) dia.insert("center", point(*g.center));

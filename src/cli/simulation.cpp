@@ -17,6 +17,7 @@
 #include "otfp/analytic.hpp"
 #include "otfp/barrier.hpp"
 #include "otfp/fractional.hpp"
+#include "otfp/images.hpp"
 #include "otfp/mass_measure.hpp"
 #include "otfp/neighbor_list.hpp"
 #include "otfp/parameters.hpp"
@@ -147,6 +148,7 @@ struct Simulation::State {
   std::unique_ptr<ExplicitStepper> explicit_stepper;
   Periodicity periodicity;
   std::vector<char> is_dirichlet;  // by patch id
+  std::vector<MirrorWallPtr> walls;  // walls with image blobs; particles beyond them are reflected back
   // The step being projected: Neumann data is handed to the projection as its
   // average over this step, so that windows [t_start, t_end) that end inside
   // a step still give the exact integral of f (the 2023 injection stops at T0).
@@ -368,8 +370,35 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
     p.condition = static_cast<int>(conditions.size());
     conditions.push_back(std::move(pc));
   }
+  // Reservoir treatment (docs/boundaries.md): Omega_ext = Omega extended by a
+  // band of width w = reservoir_width * r_c over the Dirichlet patches.
+  const TreatmentSection& tr = c.treatment;
+  std::vector<int> dirichlet_ids;
+  for (const PatchInfo& p : patches_)
+    if (p.kind == "dirichlet") dirichlet_ids.push_back(p.id);
+  DomainPtr reservoir_domain;
+  if (tr.dirichlet == "reservoir" && !dirichlet_ids.empty()) {
+    d.reservoir_width = tr.reservoir_width * cutoff_radius(d.width_s, c.solver.kernel_tolerance);
+    try {
+      reservoir_domain = domain_->extended(dirichlet_ids, d.reservoir_width);
+    } catch (const InvalidArgument& e) {
+      throw ConfigError("treatment.dirichlet", "\"reservoir\"", std::string("not available here: ") + e.what());
+    }
+    d.reservoir_sublayers = tr.reservoir_sublayers > 0
+                                ? static_cast<int>(tr.reservoir_sublayers)
+                                : std::max(1, static_cast<int>(std::lround(2.0 * d.reservoir_width / d.dr)));
+  }
   ProjectionOptions po;
   po.layer_b = d.layer_b;
+  po.neumann_outflow = tr.neumann_outflow == "nearest" ? NeumannOutflow::NearestParticles : NeumannOutflow::Layer;
+  po.absorb_exterior = tr.dirichlet == "layer" && tr.stranded == "absorb";
+  if (reservoir_domain) {
+    po.dirichlet_mode = DirichletMode::Reservoir;
+    po.reservoir_domain = reservoir_domain;
+    po.reservoir_thickness = d.reservoir_width;
+    po.reservoir_sublayers = d.reservoir_sublayers;
+    po.reservoir_profile = tr.reservoir_profile == "odd" ? ReservoirProfile::Odd : ReservoirProfile::Uniform;
+  }
   po.dirichlet_target = pa.dirichlet_target == "paper_eq34" ? DirichletTarget::PaperEq34 : DirichletTarget::CellIntegral;
   try {
     po.validate();
@@ -392,26 +421,45 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
     }
   }
   Barrier barrier;
+  std::vector<MirrorWallPtr> walls;
   if (!free_space_ && !domain_->is_periodic()) {
     try {
       const std::vector<int> inflated = st.projection->dirichlet_patches();
-      if (c.domain.type == "box" && c.domain.subpatches.empty() && !inflated.empty()) {
-        // Omega' = Omega u B^ext is again a box: the box extended by b over its
-        // Dirichlet faces. Its distance is exact and continuous, whereas
-        // inflating by patch (Barrier's inflated_patches) jumps by up to b
-        // where the closest face changes next to a Dirichlet face.
-        Vec3 lo = c.domain.lo, hi = c.domain.hi;
-        for (int p : inflated) (p % 2 == 0 ? lo : hi)[p / 2] += (p % 2 == 0 ? -d.layer_b : d.layer_b);
-        barrier = Barrier(make_box(dim, lo, hi), d.barrier_C);
-        d.barrier_domain = "box extended by b over its Dirichlet faces";
+      if (reservoir_domain) {
+        // The band's back faces are no-flux walls with image blobs (a band
+        // without them over-fills); the other walls are mirrored only with
+        // treatment.no_flux = "images".
+        barrier = Barrier(reservoir_domain, d.barrier_C);
+        d.barrier_domain = "Omega extended by the reservoir band over the Dirichlet patches";
+        std::vector<int> open;
+        if (tr.no_flux != "images")
+          for (const PatchInfo& p : patches_)
+            if (p.kind != "dirichlet") open.push_back(p.id);
+        walls = mirror_walls(*reservoir_domain, open);
       } else {
-        barrier = Barrier(domain_, d.barrier_C, inflated, d.layer_b);
-        d.barrier_domain = inflated.empty() ? "Omega" : "Omega inflated by b over the Dirichlet patches";
+        if (c.domain.type == "box" && c.domain.subpatches.empty() && !inflated.empty()) {
+          // Omega' = Omega u B^ext is again a box: the box extended by b over its
+          // Dirichlet faces. Its distance is exact and continuous, whereas
+          // inflating by patch (Barrier's inflated_patches) jumps by up to b
+          // where the closest face changes next to a Dirichlet face.
+          Vec3 lo = c.domain.lo, hi = c.domain.hi;
+          for (int p : inflated) (p % 2 == 0 ? lo : hi)[p / 2] += (p % 2 == 0 ? -d.layer_b : d.layer_b);
+          barrier = Barrier(make_box(dim, lo, hi), d.barrier_C);
+          d.barrier_domain = "box extended by b over its Dirichlet faces";
+        } else {
+          barrier = Barrier(domain_, d.barrier_C, inflated, d.layer_b);
+          d.barrier_domain = inflated.empty() ? "Omega" : "Omega inflated by b over the Dirichlet patches";
+        }
+        if (tr.no_flux == "images") walls = mirror_walls(*domain_, inflated);
       }
     } catch (const InvalidArgument& e) {
-      throw ConfigError("solver.barrier_stiffness", std::string("barrier: ") + e.what());
+      throw ConfigError("treatment.no_flux", std::string("boundary walls: ") + e.what());
     }
+  } else if (tr.no_flux == "images" && !free_space_ && domain_->is_periodic()) {
+    // A periodic box has no walls: nothing to mirror.
   }
+  d.mirrored_walls = static_cast<int>(walls.size());
+  st.walls = walls;
   const SolverSection& s = c.solver;
   NeighborOptions nb;
   nb.kernel_tolerance = s.kernel_tolerance;
@@ -436,6 +484,7 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
       io.energy_tolerance = s.energy_tolerance;
       io.validate();
       st.implicit = std::make_unique<ImplicitStepper>(dim, io, barrier, st.periodicity);
+      if (!walls.empty()) st.implicit->functional().set_images(WallImages(walls));
     } else {
       ExplicitOptions eo;
       eo.scheme = explicit_scheme_from_string(s.explicit_scheme);
@@ -444,6 +493,7 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
       eo.neighbor = nb;
       eo.validate();
       st.explicit_stepper = std::make_unique<ExplicitStepper>(dim, eo, barrier, st.periodicity);
+      if (!walls.empty()) st.explicit_stepper->functional().set_images(WallImages(walls));
     }
   } catch (const InvalidArgument& e) {
     throw ConfigError("solver", std::string("solver: ") + e.what());
@@ -519,6 +569,14 @@ nlohmann::json Simulation::describe() const {
                    {"barrier_stiffness", opt(s.barrier_stiffness)},
                    {"kernel_tolerance", s.kernel_tolerance},
                    {"skin_factor", s.skin_factor}};
+  const TreatmentSection& tr = c.treatment;
+  cfg["treatment"] = {{"no_flux", tr.no_flux},
+                      {"dirichlet", tr.dirichlet},
+                      {"reservoir_width", tr.reservoir_width},
+                      {"reservoir_sublayers", tr.reservoir_sublayers},
+                      {"reservoir_profile", tr.reservoir_profile},
+                      {"neumann_outflow", tr.neumann_outflow},
+                      {"stranded", tr.stranded}};
   cfg["diagnostics"] = {{"center", c.diagnostics.center ? to_json(*c.diagnostics.center) : nullptr},
                         {"M_inf", opt(c.diagnostics.M_inf)},
                         {"J_inf", opt(c.diagnostics.J_inf)},
@@ -551,6 +609,9 @@ nlohmann::json Simulation::describe() const {
                         {"steps_to_run", d.steps_to_run},
                         {"barrier_C", d.barrier_C},
                         {"barrier_domain", d.barrier_domain},
+                        {"mirrored_walls", d.mirrored_walls},
+                        {"reservoir_width", d.reservoir_width},
+                        {"reservoir_sublayers", d.reservoir_sublayers},
                         {"particle_mass", d.particle_mass},
                         {"M_inf", d.M_inf},
                         {"M_inf_rule", d.M_inf_rule},
@@ -637,6 +698,7 @@ RunResult Simulation::run(const RunOptions& options) {
   long source_inserted = 0, source_removed = 0;
   double source_mass_in = 0.0, source_mass_out = 0.0;
   std::int64_t inserted_total = 0, removed_total = 0;
+  std::int64_t reflected_total = 0;  // particles put back across mirrored walls
   double mass_in_total = 0.0, mass_out_total = 0.0;
   std::int64_t n0 = 0;
   double M0 = 0.0;
@@ -657,6 +719,8 @@ RunResult Simulation::run(const RunOptions& options) {
     r.dt = step == 0 ? 0.0 : d.dt;
     const std::size_t n = particles.size();
     region.assign(n, kElsewhere);
+    // The buffer outside a Dirichlet face: B^ext (width b) or the reservoir band (width w).
+    const double buffer_width = d.reservoir_width > 0.0 ? d.reservoir_width : d.layer_b;
     double age_sum = 0.0;
     for (std::size_t p = 0; p < n; ++p) {
       const Vec3& x = particles.positions()[p];
@@ -671,7 +735,7 @@ RunResult Simulation::run(const RunOptions& options) {
         r.mass_inside += m;
         r.polar_inertia += m * r2;
       } else if (q.patch >= 0 && st.is_dirichlet[static_cast<std::size_t>(q.patch)] &&
-                 q.signed_distance <= d.layer_b) {
+                 q.signed_distance <= buffer_width) {
         region[p] = kBuffer;
         ++r.n_buffer;
       } else {
@@ -872,12 +936,15 @@ RunResult Simulation::run(const RunOptions& options) {
       j["removed"] = l.removed;
       j["mass_inserted"] = l.mass_inserted;
       j["mass_removed"] = l.mass_removed;
+      j["absorbed"] = l.absorbed;
+      j["mass_absorbed"] = l.mass_absorbed;
       j["flux_integral"] = l.flux_integral;
       j["carry"] = l.carry;
       j["deficit"] = l.deficit;
       patches.push_back(j);
     }
     return nlohmann::json{{"initial_particles", n0},
+                          {"reflected", reflected_total},
                           {"initial_mass", M0},
                           {"inserted", inserted_total},
                           {"removed", removed_total},
@@ -1107,6 +1174,9 @@ RunResult Simulation::run(const RunOptions& options) {
       // Lines 5-23: projection onto the boundary conditions.
       *st.step_window = {t0, t1};
       const PatchLedger pl = st.projection->apply(particles, t0, h, rng);
+      // Mirrored walls: a particle that crossed one is reflected back (its
+      // image would push it further out); moved, not removed, so counted apart.
+      if (!st.walls.empty()) reflected_total += static_cast<std::int64_t>(reflect_inside(st.walls, particles.positions()));
       ins += pl.inserted;
       rem += pl.removed;
       mass_in_total += pl.mass_inserted;
@@ -1158,7 +1228,7 @@ RunResult Simulation::run(const RunOptions& options) {
             const BoundaryQuery q = domain_->query(particles.positions()[p]);
             if (q.signed_distance <= 0.0)
               flags[p] = kInside;
-            else if (q.patch >= 0 && st.is_dirichlet[static_cast<std::size_t>(q.patch)] && q.signed_distance <= d.layer_b)
+            else if (q.patch >= 0 && st.is_dirichlet[static_cast<std::size_t>(q.patch)] && q.signed_distance <= (d.reservoir_width > 0.0 ? d.reservoir_width : d.layer_b))
               flags[p] = kBuffer;
           }
           std::filesystem::create_directories(out);

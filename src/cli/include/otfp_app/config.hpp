@@ -112,6 +112,18 @@ struct SolverSection {
   double skin_factor = 1.0;
 };
 
+// How the boundaries are treated (docs/boundaries.md): the papers' way or the
+// treatments that converge (issue 10).
+struct TreatmentSection {
+  std::string no_flux = "barrier";          // barrier | images (image blobs at every non-Dirichlet wall)
+  std::string dirichlet = "layer";          // layer (Sec. 4.2) | reservoir (persistent band outside the face)
+  double reservoir_width = 1.0;             // band thickness in units of the kernel cut-off r_c of the blobs
+  std::int64_t reservoir_sublayers = 0;     // 0: round(2 w / dr), half a spacing per sublayer
+  std::string reservoir_profile = "uniform";  // uniform (g) | odd (2 g - interior mirror density)
+  std::string neumann_outflow = "layer";    // layer (B_l only) | nearest (beyond B_l when it runs empty)
+  std::string stranded = "keep";            // keep | absorb: particles beyond a Dirichlet face (layer treatment)
+};
+
 struct DiagnosticsSection {
   std::optional<Vec3> center;
   std::optional<double> M_inf;
@@ -128,6 +140,7 @@ struct Config {
   PhysicsSection physics;
   std::vector<BoundarySpec> boundary;
   SolverSection solver;
+  TreatmentSection treatment;
   DiagnosticsSection diagnostics;
   std::string source = "<string>";      // file the configuration came from
   std::vector<std::string> overrides;   // the --set arguments, in order

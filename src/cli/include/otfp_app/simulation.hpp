@@ -54,6 +54,9 @@ struct Derived {
   std::int64_t steps_to_run = 0;  // n_steps, or run.max_steps if smaller
   double barrier_C = 0.0;    // (40): barrier_factor / dt_explicit unless given
   std::string barrier_domain = "none";  // what Omega' the barrier keeps the particles in
+  int mirrored_walls = 0;               // wall surfaces with image blobs (treatment.no_flux, reservoir back faces)
+  double reservoir_width = 0.0;         // band width w of the Dirichlet reservoir (0: papers' layer)
+  int reservoir_sublayers = 0;          // sublayers of the band, each held at its own count
   double particle_mass = 0.0;
   double M_inf = 0.0;
   std::string M_inf_rule;
