@@ -387,12 +387,43 @@ void BoundaryProjection::build_reservoir(std::size_t i) {
       const int jj = sublayer_of(band_depth(r.wall->reflect(x, nullptr)), sublayers);
       if (jj >= 0) ++mhits[static_cast<std::size_t>(jj)];
     }
-    r.mirror_volume.assign(K, 0.0);
+    std::vector<double> mmc(K), mse(K);
     for (std::size_t jj = 0; jj < K; ++jj) {
-      r.mirror_volume[jj] = mbox_volume * static_cast<double>(mhits[jj]) / static_cast<double>(samples);
-      require(r.mirror_volume[jj] > 0.0, "boundary.reservoir_profile", "odd",
-              "the mirror image of a sublayer of patch " + name + " inside Omega is empty (domain too thin?)");
+      const double p = static_cast<double>(mhits[jj]) / static_cast<double>(samples);
+      mmc[jj] = mbox_volume * p;
+      mse[jj] = mbox_volume * std::sqrt(p * (1.0 - p) / static_cast<double>(samples));
+      require(mmc[jj] > 0.0, "boundary.reservoir_profile", "odd",
+              "the mirror image of sublayer " + std::to_string(jj) + " of patch " + name + " (" +
+                  std::to_string(mhits[jj]) + " of " + std::to_string(samples) +
+                  " samples) inside Omega is empty (domain too thin?)");
     }
+    // Closed forms where they are exact, checked against the Monte Carlo
+    // estimate as for the band: a plane keeps volumes (the band's own), a
+    // sphere maps the shell (R + a, R + b] onto [R - b, R - a) (interior layer
+    // cells of a ball); otherwise the Monte Carlo values.
+    auto agrees_m = [&](const std::vector<double>& v) {
+      for (std::size_t jj = 0; jj < K; ++jj)
+        if (!(std::abs(v[jj] - mmc[jj]) <= kVolumeAgreementSigmas * mse[jj] + 1e-9 * std::max(v[jj], mmc[jj])))
+          return false;
+      return true;
+    };
+    std::vector<double> inner_shell(K);
+    double inner_below = 0.0;
+    bool inner_closed_form = true;
+    for (std::size_t jj = 0; jj < K; ++jj) {
+      const double t = depth(jj + 1);
+      const double v1 = domain_->layer_cell_volume(c.patch, t, LayerPart::Interior, 1000);
+      const double v2 = domain_->layer_cell_volume(c.patch, t, LayerPart::Interior, 1001);
+      inner_closed_form = inner_closed_form && v1 == v2;
+      inner_shell[jj] = v1 - inner_below;
+      inner_below = v1;
+    }
+    if (r.volume_rule != "monte_carlo" && agrees_m(r.volume))
+      r.mirror_volume = r.volume;
+    else if (inner_closed_form && agrees_m(inner_shell))
+      r.mirror_volume = inner_shell;
+    else
+      r.mirror_volume = mmc;
     r.mirror_mass.assign(K, 0.0);
   }
 }

@@ -943,3 +943,43 @@ TEST(BoundaryProjection, NewOptionsNameTheFieldWhenInvalid) {
   expect_invalid([&] { res.reservoir_sublayer_volume(0, 2); }, "reservoir sublayer");
   expect_invalid([&] { res.reservoir_target_count(1, 0, 0.0); }, "boundary condition index");
 }
+
+// Odd profile: a box face (plane: the mirror of each sublayer is the slab at
+// the same depth inside). An empty interior doubles the band's density (2 g);
+// an interior at g leaves it at g; an interior at 2 g empties it (clamped at 0).
+TEST(BoundaryProjection, ReservoirOddProfileMirrorsTheInteriorAboutG) {
+  const double w = 0.3, g = 400.0, mp = 1.0, s = 0.03;
+  const int K = 3;
+  const auto box = make_box(3, Vec3::Zero(), Vec3(2.0, 1.0, 1.0));
+  const auto ext = box->extended({0}, w);
+  ProjectionOptions o = reservoir_options(ext, w, K);
+  o.reservoir_profile = ReservoirProfile::Odd;
+  // Sublayer volumes are 0.1 each: X_j = g 0.1 / m_p = 40 particles.
+  auto band_counts = [&](double interior_density) {
+    BoundaryProjection bp(box, {condition(0, PatchKind::Dirichlet, constant(g))}, o, mp, s);
+    ParticleSet ps(3);
+    // Interior particles at density interior_density in each mirror slab
+    // (depth (j/10, (j+1)/10) inside the face, volume 0.1), at random places.
+    Rng place(17);
+    const auto per_slab = static_cast<int>(std::lround(interior_density * 0.1 / mp));
+    for (int j = 0; j < K; ++j)
+      for (int k = 0; k < per_slab; ++k)
+        ps.add(Vec3(0.1 * (j + place.uniform(0.01, 0.99)), place.uniform(), place.uniform()), s, mp);
+    const std::size_t n_inside = ps.size();
+    Rng rng(5);
+    bp.apply(ps, 0.0, 0.01, rng);
+    long band = 0;
+    for (std::size_t p = 0; p < ps.size(); ++p) band += ps.positions()[p][0] < 0.0;
+    EXPECT_EQ(ps.size() - static_cast<std::size_t>(band), n_inside) << "interior particles untouched";
+    return band;
+  };
+  EXPECT_EQ(band_counts(0.0), 3 * 80);    // 2 g in each sublayer
+  EXPECT_EQ(band_counts(400.0), 3 * 40);  // interior at g: g outside
+  EXPECT_EQ(band_counts(600.0), 3 * 20);  // 1.5 g inside: 0.5 g outside
+  EXPECT_EQ(band_counts(800.0), 0);       // 2 g inside: nothing outside
+  o.reservoir_profile = ReservoirProfile::Uniform;
+  EXPECT_EQ(band_counts(0.0), 3 * 40);  // the uniform profile ignores the interior
+  EXPECT_EQ(to_string(ReservoirProfile::Odd), "odd");
+  EXPECT_EQ(reservoir_profile_from_string("uniform"), ReservoirProfile::Uniform);
+  EXPECT_THROW(reservoir_profile_from_string("even"), InvalidArgument);
+}

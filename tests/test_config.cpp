@@ -105,6 +105,29 @@ TEST(Config, EveryKeyIsDocumented) {
   }
 }
 
+TEST(Config, TreatmentKeysReachTheRun) {
+  Simulation papers(parse_config_string(kBase));
+  EXPECT_EQ(papers.derived().mirrored_walls, 0);
+  EXPECT_EQ(papers.derived().reservoir_width, 0.0);
+  Simulation reservoir(parse_config_string(kBase, {"particles.n_inf=1600", "treatment.dirichlet=reservoir",
+                                                   "treatment.reservoir_width=1.5", "treatment.reservoir_profile=odd"}));
+  const Derived& d = reservoir.derived();
+  // w = 1.5 r_c with r_c = s sqrt(ln(1e8)); sublayers round(2 w / dr); the band's back face is mirrored.
+  EXPECT_NEAR(d.reservoir_width, 1.5 * d.width_s * std::sqrt(std::log(1e8)), 1e-12);
+  EXPECT_EQ(d.reservoir_sublayers, static_cast<int>(std::lround(2.0 * d.reservoir_width / d.dr)));
+  EXPECT_EQ(d.mirrored_walls, 1);
+  EXPECT_EQ(reservoir.describe()["config"]["treatment"]["reservoir_profile"], "odd");
+  // The resolved TOML parses back to the same treatment.
+  const Config again = parse_config_string(to_toml(reservoir.config()));
+  EXPECT_EQ(again.treatment.dirichlet, "reservoir");
+  EXPECT_DOUBLE_EQ(again.treatment.reservoir_width, 1.5);
+  EXPECT_EQ(again.treatment.reservoir_profile, "odd");
+  // A box with one Dirichlet face: images at the five others.
+  Simulation box(parse_config_file(std::filesystem::path(OTFP_SOURCE_DIR) / "examples" / "box_mixed.toml",
+                                   {"treatment.no_flux=images"}));
+  EXPECT_EQ(box.derived().mirrored_walls, 5);
+}
+
 TEST(Config, SetUsesTheTypeOfTheKey) {
   const Config c = parse_config_string(kBase, {"particles.n_inf=3200", "solver.stepper=explicit",
                                                "physics.kappa=2", "run.t_end=0.5", "physics.velocity=[1, 0, 0]",
@@ -186,6 +209,22 @@ TEST(Config, BadConfigurationsNameTheirKey) {
       {"width exponent NaN", kBase, {"particles.width_exponent=nan"}, "particles.width_exponent"},
       {"width reference n zero", kBase, {"particles.width_reference_n=0"}, "particles.width_reference_n"},
       {"width reference n not an integer", kBase, {"particles.width_reference_n=1.5"}, "particles.width_reference_n"},
+      {"unknown no-flux treatment", kBase, {"treatment.no_flux=mirror"}, "treatment.no_flux"},
+      {"unknown Dirichlet treatment", kBase, {"treatment.dirichlet=bath"}, "treatment.dirichlet"},
+      {"reservoir width zero", kBase, {"treatment.reservoir_width=0"}, "treatment.reservoir_width"},
+      {"reservoir width above 10", kBase, {"treatment.reservoir_width=11"}, "treatment.reservoir_width"},
+      {"odd reservoir deeper than the ball", kBase,
+       {"treatment.dirichlet=reservoir", "treatment.reservoir_profile=odd", "treatment.reservoir_width=1.5"},
+       "treatment.reservoir_width"},
+      {"negative sublayers", kBase, {"treatment.reservoir_sublayers=-1"}, "treatment.reservoir_sublayers"},
+      {"unknown reservoir profile", kBase, {"treatment.reservoir_profile=even"}, "treatment.reservoir_profile"},
+      {"unknown outflow rule", kBase, {"treatment.neumann_outflow=all"}, "treatment.neumann_outflow"},
+      {"reservoir on a sub-patch",
+       kBase + "[[domain.subpatch]]\nname = \"o\"\non = \"surface\"\ncenter = [0, 0, 1]\nradius = 0.3\n",
+       {"boundary.0.patch=o", "treatment.dirichlet=reservoir"}, "treatment.dirichlet"},
+      {"images on a CSG domain",
+       "[domain]\ntype = \"square_pipe_obstacle\"\n[particles]\nn_inf = 100\n", {"treatment.no_flux=images"},
+       "treatment.no_flux"},
   };
   ASSERT_GE(cases.size(), 10u);
   const fs::path file = fs::temp_directory_path() / ("otfp_test_config_bad_" + std::to_string(::getpid()) + ".toml");

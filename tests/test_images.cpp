@@ -11,6 +11,7 @@
 #include "otfp/functional.hpp"
 #include "otfp/geometry.hpp"
 #include "otfp/images.hpp"
+#include "otfp/stepper.hpp"
 #include "test_support.hpp"
 
 using namespace otfp;
@@ -362,4 +363,49 @@ TEST(ReflectInside, PutsParticlesBackAcrossEveryWallTheyCrossed) {
   std::vector<Vec3> y = {Vec3(0.0, 1.2, 0.0)};
   EXPECT_EQ(reflect_inside(mirror_walls(*ball), y), 1u);
   EXPECT_NEAR((y[0] - Vec3(0.0, 0.8, 0.0)).norm(), 0.0, 1e-15);  // r* = 2R - r
+}
+
+// A uniform state stays uniform in a closed square with images: after implicit
+// steps from a jittered lattice, the number density within two spacings of the
+// walls is within 5% of the interior's, and no particle is outside. With the
+// barrier alone the blob-density deficit pushes particles out of the walls.
+TEST(FunctionalWithImages, ClosedSquareStaysUniform) {
+  const int n_side = 30;
+  const double h = 1.0 / n_side;
+  auto square = make_box(2, Vec3::Zero(), Vec3(1.0, 1.0, 0.0));
+  auto run = [&](bool images, double* outside_fraction) {
+    ParticleSet ps(2);
+    Rng rng(9);
+    for (int i = 0; i < n_side; ++i)
+      for (int j = 0; j < n_side; ++j)
+        ps.add(Vec3((i + 0.5 + 0.2 * rng.uniform(-1, 1)) * h, (j + 0.5 + 0.2 * rng.uniform(-1, 1)) * h, 0.0),
+               h / std::sqrt(2.0), h * h);
+    ImplicitOptions o;
+    ImplicitStepper stepper(2, o, Barrier(square, 1.0 / (h * h)));
+    const auto walls = mirror_walls(*square);
+    if (images) stepper.functional().set_images(WallImages(walls));
+    int outside_max = 0;
+    for (int k = 0; k < 10; ++k) {
+      const StepSummary sum = stepper.step(ps, h * h);
+      EXPECT_TRUE(sum.accepted) << sum.message;
+      int outside = 0;
+      for (const Vec3& x : ps.positions()) outside += square->signed_distance(x) > 0.0;
+      outside_max = std::max(outside_max, outside);
+      if (images) reflect_inside(walls, ps.positions());
+    }
+    *outside_fraction = static_cast<double>(outside_max) / static_cast<double>(ps.size());
+    // Density within 2h of a wall against the interior.
+    int near = 0, far = 0;
+    for (const Vec3& x : ps.positions()) (square->signed_distance(x) > -2.0 * h ? near : far)++;
+    const double near_area = 1.0 - (1.0 - 4.0 * h) * (1.0 - 4.0 * h), far_area = 1.0 - near_area;
+    return (near / near_area) / (far / far_area);
+  };
+  double outside_images = 0.0, outside_barrier = 0.0;
+  const double ratio_images = run(true, &outside_images);
+  const double ratio_barrier = run(false, &outside_barrier);
+  std::printf("wall/interior density: images %.4f (outside %.4f), barrier %.4f (outside %.4f)\n", ratio_images,
+              outside_images, ratio_barrier, outside_barrier);
+  EXPECT_NEAR(ratio_images, 1.0, 0.05);
+  EXPECT_LT(outside_images, 0.01);
+  EXPECT_GT(outside_barrier, 0.02);
 }

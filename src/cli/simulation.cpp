@@ -379,6 +379,13 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
   DomainPtr reservoir_domain;
   if (tr.dirichlet == "reservoir" && !dirichlet_ids.empty()) {
     d.reservoir_width = tr.reservoir_width * cutoff_radius(d.width_s, c.solver.kernel_tolerance);
+    if (tr.reservoir_profile == "odd" && !(d.reservoir_width < 0.5 * st.built.min_extent))
+      throw ConfigError("treatment.reservoir_width", fmt::format("{}", tr.reservoir_width),
+                        fmt::format("gives a band of {} (x the kernel cut-off {}): the odd profile mirrors the band "
+                                    "inside Omega, so it must be < half the smallest extent of the domain ({}); "
+                                    "raise particles.n_inf or lower the width",
+                                    d.reservoir_width, cutoff_radius(d.width_s, c.solver.kernel_tolerance),
+                                    0.5 * st.built.min_extent));
     try {
       reservoir_domain = domain_->extended(dirichlet_ids, d.reservoir_width);
     } catch (const InvalidArgument& e) {
@@ -453,7 +460,7 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
         if (tr.no_flux == "images") walls = mirror_walls(*domain_, inflated);
       }
     } catch (const InvalidArgument& e) {
-      throw ConfigError("treatment.no_flux", std::string("boundary walls: ") + e.what());
+      throw ConfigError("treatment.no_flux", "\"" + tr.no_flux + "\"", std::string("walls: ") + e.what());
     }
   } else if (tr.no_flux == "images" && !free_space_ && domain_->is_periodic()) {
     // A periodic box has no walls: nothing to mirror.
