@@ -3,15 +3,21 @@
 // evaluations per second, the neighbour-list build time and memory per particle.
 // The "Tailed" variants give the blobs the spread of widths that optimised
 // widths reach in the sphere (study 2: median 1.7 s0, 15% at 2-6 s0).
+// The "Images" variant mirrors the blobs across the six walls of the unit box
+// (docs/boundaries.md); its time includes choosing the images at each list
+// build only in the list-build benchmark.
 //   ./otfp_bench_functional --benchmark_counters_tabular=true
 #include <benchmark/benchmark.h>
 #include <omp.h>
 
 #include <cmath>
 #include <map>
+#include <tuple>
 #include <memory>
 
 #include "otfp/functional.hpp"
+#include "otfp/geometry.hpp"
+#include "otfp/images.hpp"
 
 using namespace otfp;
 
@@ -25,9 +31,9 @@ struct Setup {
 };
 
 // One cached set-up per n and width distribution (building the 1e6 cloud is not what we time).
-Setup& setup(std::size_t n, bool tailed = false) {
-  static std::map<std::pair<std::size_t, bool>, std::unique_ptr<Setup>> cache;
-  auto& slot = cache[{n, tailed}];
+Setup& setup(std::size_t n, bool tailed = false, bool images = false) {
+  static std::map<std::tuple<std::size_t, bool, bool>, std::unique_ptr<Setup>> cache;
+  auto& slot = cache[{n, tailed, images}];
   if (!slot) {
     slot = std::make_unique<Setup>();
     const double side = 1.0;
@@ -49,15 +55,16 @@ Setup& setup(std::size_t n, bool tailed = false) {
     slot->x = slot->ps.positions();
     slot->s = slot->ps.widths();
     slot->f->set_reference(slot->x, slot->s, slot->ps.masses());
-    slot->f->list().build(slot->x, slot->s, Periodicity::none(3));
+    if (images) slot->f->set_images(WallImages(mirror_walls(*make_box(3, Vec3::Zero(), Vec3::Ones()))));
+    slot->f->rebuild_list(slot->x, slot->s);
   }
   return *slot;
 }
 
-void run_value_and_gradient(benchmark::State& state, bool tailed) {
+void run_value_and_gradient(benchmark::State& state, bool tailed, bool images = false) {
   const auto n = static_cast<std::size_t>(state.range(0));
   omp_set_num_threads(static_cast<int>(state.range(1)));
-  Setup& su = setup(n, tailed);
+  Setup& su = setup(n, tailed, images);
   Gradient g;
   const std::uint64_t pairs0 = su.f->entropy().pair_evaluations();
   for (auto _ : state) {
@@ -72,6 +79,7 @@ void run_value_and_gradient(benchmark::State& state, bool tailed) {
   state.counters["bytes_per_particle"] =
       static_cast<double>(su.f->list().memory_bytes()) / static_cast<double>(n) + per_particle_arrays;
   state.counters["threads"] = static_cast<double>(state.range(1));
+  state.counters["images_per_particle"] = static_cast<double>(su.f->images().size()) / static_cast<double>(n);
 }
 
 void run_list_build(benchmark::State& state, bool tailed) {
@@ -89,7 +97,19 @@ void run_list_build(benchmark::State& state, bool tailed) {
 
 void BM_FunctionalValueAndGradient(benchmark::State& state) { run_value_and_gradient(state, false); }
 void BM_FunctionalValueAndGradientTailed(benchmark::State& state) { run_value_and_gradient(state, true); }
+void BM_FunctionalValueAndGradientImages(benchmark::State& state) { run_value_and_gradient(state, false, true); }
 void BM_NeighborListBuild(benchmark::State& state) { run_list_build(state, false); }
+// Image selection plus the list over particles and images.
+void BM_NeighborListBuildImages(benchmark::State& state) {
+  const auto n = static_cast<std::size_t>(state.range(0));
+  omp_set_num_threads(static_cast<int>(state.range(1)));
+  Setup& su = setup(n, false, true);
+  for (auto _ : state) {
+    su.f->rebuild_list(su.x, su.s);
+    benchmark::DoNotOptimize(su.f->list().indices().data());
+  }
+  state.counters["images_per_particle"] = static_cast<double>(su.f->images().size()) / static_cast<double>(n);
+}
 void BM_NeighborListBuildTailed(benchmark::State& state) { run_list_build(state, true); }
 
 }  // namespace
@@ -100,6 +120,14 @@ BENCHMARK(BM_FunctionalValueAndGradient)
     ->UseRealTime();
 BENCHMARK(BM_NeighborListBuild)
     ->ArgsProduct({{10000, 100000, 1000000}, {1, 2}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_FunctionalValueAndGradientImages)
+    ->ArgsProduct({{10000, 100000}, {1}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_NeighborListBuildImages)
+    ->ArgsProduct({{10000, 100000}, {1}})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK(BM_FunctionalValueAndGradientTailed)
