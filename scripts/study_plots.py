@@ -592,6 +592,23 @@ def boundaries(sweeps, docs):
                 copy_data(d, os.path.join(docs, "data", "boundaries", f"{case}_{variant}"),
                           ["t", "mass_ratio", "reference_mass_ratio", "mass_blob_ratio", "mass_total", "mass_inside",
                            "n_particles", "n_outside"])
+    d = os.path.join(sweeps, "boundaries", "sphere_widths")
+    if os.path.exists(os.path.join(d, "runs.csv")):
+        rows = read_rows(os.path.join(d, "runs.csv"))
+        table = []
+        for r in sorted(rows, key=lambda r: (num(r, "particles.n_inf"), r["solver.width_mode"],
+                                              -num(r, "particles.width_exponent"))):
+            done = r["status"] == "completed"
+            sm = summary(d, r) if done else None
+            table.append([int(num(r, "particles.n_inf")), r["particles.width_exponent"], r["solver.width_mode"],
+                          num(r, "ref_mean_abs_error") if done else r["status"],
+                          sm["reference"].get("mass_blob", {}).get("mean_abs_error", float("nan")) if sm else "-",
+                          num(r, "evaluations") if done else "-", num(r, "n_particles") if done else "-",
+                          num(r, "wall_seconds")])
+        md.append("## Widths with the best treatment (sphere)\n")
+        md.append(md_table(["n_inf", "width_exponent q", "width_mode", "mean abs err M", "mean abs err M_rho",
+                            "evaluations", "n at T", "wall [s]"], table))
+        md.append("")
     md.append("## Fitted slopes (error ~ n^-alpha, least squares in log-log, +- one standard error)\n")
     md.append(md_table(["case", "treatment", "alpha", "std. error", "error at largest n", "largest n"],
                        [[c, v, a, sa, e, n] for c, v, a, sa, e, n in fits]))

@@ -189,10 +189,13 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
     info.t_start = b.t_start;
     info.t_end = b.t_end;
   }
-  bool any_dirichlet = false, any_condition = false;
+  bool any_dirichlet = false, any_layer = false;
   for (const PatchInfo& p : patches_) {
     any_dirichlet = any_dirichlet || p.kind == "dirichlet";
-    any_condition = any_condition || p.kind != "no_flux";
+    // The layer b is used by Neumann patches and by Dirichlet patches unless
+    // they use the reservoir, whose band width is w instead.
+    const bool uses_layer = p.kind == "neumann" || (p.kind == "dirichlet" && c.treatment.dirichlet == "layer");
+    any_layer = any_layer || uses_layer;
   }
 
   // Spacing, width, layer, time step, barrier: (36)-(40).
@@ -215,7 +218,7 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
   d.true_spacing = spacing(d.volume, static_cast<std::size_t>(c.particles.n_inf), dim);
   d.beta_true_spacing2 = d.beta * d.true_spacing * d.true_spacing;
   d.layer_b = c.particles.layer_b > 0.0 ? c.particles.layer_b : pp.layer_b;
-  if (any_condition && !(d.layer_b < 0.5 * st.built.min_extent))
+  if (any_layer && !(d.layer_b < 0.5 * st.built.min_extent))
     throw ConfigError("particles.layer_b",
                       fmt::format("{}{}", d.layer_b, c.particles.layer_b > 0.0 ? "" : " (sqrt(length_L dr))"),
                       fmt::format("must be < half the smallest extent of the domain ({})", 0.5 * st.built.min_extent));
@@ -379,13 +382,6 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
   DomainPtr reservoir_domain;
   if (tr.dirichlet == "reservoir" && !dirichlet_ids.empty()) {
     d.reservoir_width = tr.reservoir_width * cutoff_radius(d.width_s, c.solver.kernel_tolerance);
-    if (tr.reservoir_profile == "odd" && !(d.reservoir_width < 0.5 * st.built.min_extent))
-      throw ConfigError("treatment.reservoir_width", fmt::format("{}", tr.reservoir_width),
-                        fmt::format("gives a band of {} (x the kernel cut-off {}): the odd profile mirrors the band "
-                                    "inside Omega, so it must be < half the smallest extent of the domain ({}); "
-                                    "raise particles.n_inf or lower the width",
-                                    d.reservoir_width, cutoff_radius(d.width_s, c.solver.kernel_tolerance),
-                                    0.5 * st.built.min_extent));
     try {
       reservoir_domain = domain_->extended(dirichlet_ids, d.reservoir_width);
     } catch (const InvalidArgument& e) {
@@ -411,6 +407,12 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
     po.validate();
     st.projection = std::make_unique<BoundaryProjection>(domain_, std::move(conditions), po, d.particle_mass, d.width_s);
   } catch (const InvalidArgument& e) {
+    // The odd profile mirrors the band inside Omega: a band deeper than the domain has no mirror.
+    if (reservoir_domain && std::string(e.what()).find("mirror image") != std::string::npos)
+      throw ConfigError("treatment.reservoir_width", fmt::format("{}", tr.reservoir_width),
+                        fmt::format("gives a band of {} that the odd profile cannot mirror inside Omega ({}); "
+                                    "raise particles.n_inf or lower the width",
+                                    d.reservoir_width, e.what()));
     throw ConfigError("boundary", std::string("boundary: ") + e.what());
   }
 
