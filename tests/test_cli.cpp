@@ -241,6 +241,37 @@ value = 200.0
   EXPECT_TRUE(saw_inlet && saw_outlet);
 }
 
+// The pipe of Sec. 5.3 at its paper fluxes: the papers' outlet owes most of
+// its outflow and the mass grows; outlets that take the nearest particles and
+// images at the walls keep the total mass on the analytic balance (equal
+// inflow and outflow: constant) with nothing owed and no particle outside.
+TEST(Cli, PipeOutletsDeliverWithTheNearestRule) {
+  const std::vector<std::string> common = {"particles.n_inf=300", "run.t_end=0.2", "run.vtk_interval=0"};
+  auto with = [&](std::vector<std::string> extra) {
+    extra.insert(extra.end(), common.begin(), common.end());
+    return run_example("pipe_neumann.toml", extra);
+  };
+  const RunResult papers = with({});
+  const RunResult best = with({"particles.spacing_rule=cube", "treatment.no_flux=images",
+                               "treatment.neumann_outflow=nearest"});
+  ASSERT_EQ(papers.exit_code, 0) << papers.error;
+  ASSERT_EQ(best.exit_code, 0) << best.error;
+  auto outlet_deficit = [](const RunResult& r) {
+    for (const auto& p : r.summary["ledger"]["patches"])
+      if (p["patch"] == "outlet") return p["deficit"].get<double>();
+    return -1.0;
+  };
+  const double mp = best.summary["derived"]["particle_mass"].get<double>();
+  EXPECT_GT(outlet_deficit(papers), 10.0 * mp);
+  EXPECT_GT(papers.last.mass_total, 1000.0 + 10.0 * mp);
+  EXPECT_EQ(outlet_deficit(best), 0.0);
+  for (const StepRecord& s : best.series) {
+    EXPECT_LT(std::abs(s.mass_total - 1000.0), mp) << "t = " << s.t;
+    EXPECT_EQ(s.n_outside, 0) << "t = " << s.t;
+  }
+  EXPECT_EQ(best.summary["derived"]["mirrored_walls"].get<int>(), 3);
+}
+
 // A flux window ending inside a step still moves exactly int f dA dt (the 2023
 // injection stops at T0): the driver hands the projection the step average.
 TEST(Cli, NeumannWindowIntegratesExactly) {
