@@ -549,7 +549,7 @@ def boundaries(sweeps, docs):
             for r in rows:
                 n = int(num(r, "particles.n_inf"))
                 if r["status"] != "completed":
-                    table.append([n, variant, r["status"], "-", "-", "-", "-", "-", num(r, "wall_seconds")])
+                    table.append([str(n), variant, r["status"], "-", "-", "-", "-", "-", num(r, "wall_seconds")])
                     continue
                 sm = summary(d, r)
                 se = series(d, r)
@@ -561,22 +561,35 @@ def boundaries(sweeps, docs):
                 else:
                     err = num(r, "ref_mean_abs_error")
                     err_blob = sm["reference"].get("mass_blob", {}).get("mean_abs_error", float("nan"))
+                if case == "pipe":  # the mass itself over time (the best treatment's error is 0: no log scale)
+                    c, m = style[variant]
+                    ax.plot(se["t"], se["mass_total"] / sm["derived"]["M_inf"], "-", color=c,
+                            label=f"{variant}, n_inf = {n}: total mass")
+                    ax.plot(se["t"], bal / sm["derived"]["M_inf"], ":", color="k")
                 ns.append(n)
                 errs.append(err)
                 errs_blob.append(err_blob)
-                table.append([n, variant, err, err_blob, num(r, "mass_ratio"), outside, num(r, "n_particles"),
+                table.append([str(n), variant, err, err_blob, num(r, "mass_ratio"), outside,
+                              str(int(num(r, "n_particles"))),
                               sm["derived"].get("beta_true_spacing2", float("nan")), num(r, "wall_seconds")])
             if not ns:
                 continue
             c, m = style[variant]
             C, a, sa = fit_slope(ns, errs)
+            fits.append((case, variant, a, sa, errs[-1], ns[-1]))
+            if case == "pipe":
+                continue
             ax.loglog(ns, errs, m, color=c, label=f"{variant}: n^-({a:.2f} +- {sa:.2f})")
             if math.isfinite(a):
                 xx = np.array([min(ns), max(ns)], float)
                 ax.loglog(xx, C * xx ** (-a), "--", color=c)
-            fits.append((case, variant, a, sa, errs[-1], ns[-1]))
-        ax.set_xlabel("n_inf")
-        ax.set_ylabel("mean |M/M_inf - Crank|" if case != "pipe" else "max |M - balance| / M_inf")
+        if case == "pipe":
+            ax.set_yscale("log")
+            ax.set_xlabel("t (dotted: the analytic balance)")
+            ax.set_ylabel("M_total / M_inf")
+        else:
+            ax.set_xlabel("n_inf")
+            ax.set_ylabel("mean |M/M_inf - Crank|")
         ax.set_title(case)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
@@ -592,6 +605,21 @@ def boundaries(sweeps, docs):
                 copy_data(d, os.path.join(docs, "data", "boundaries", f"{case}_{variant}"),
                           ["t", "mass_ratio", "reference_mass_ratio", "mass_blob_ratio", "mass_total", "mass_inside",
                            "n_particles", "n_outside"])
+    d = os.path.join(sweeps, "boundaries", "box_best_beta1")
+    if os.path.exists(os.path.join(d, "runs.csv")):
+        base = {}
+        d2 = os.path.join(sweeps, "boundaries", "box_best")
+        if os.path.exists(os.path.join(d2, "runs.csv")):
+            base = {r["particles.n_inf"]: r for r in read_rows(os.path.join(d2, "runs.csv"))}
+        table = []
+        for r in sorted(read_rows(os.path.join(d, "runs.csv")), key=lambda r: num(r, "particles.n_inf")):
+            b = base.get(r["particles.n_inf"], {})
+            table.append([r["particles.n_inf"], num(b, "ref_mean_abs_error"), num(r, "ref_mean_abs_error"),
+                          num(b, "ref_max_abs_error"), num(r, "ref_max_abs_error"), num(r, "wall_seconds")])
+        md.append("## Box, best treatment: beta dr^2 = 2 against 1 (what limits the box)\n")
+        md.append(md_table(["n_inf", "mean abs err, beta dr^2 = 2", "mean abs err, beta dr^2 = 1",
+                            "max abs err, 2", "max abs err, 1", "wall [s] (1)"], table))
+        md.append("")
     d = os.path.join(sweeps, "boundaries", "sphere_widths")
     if os.path.exists(os.path.join(d, "runs.csv")):
         rows = read_rows(os.path.join(d, "runs.csv"))
@@ -600,10 +628,10 @@ def boundaries(sweeps, docs):
                                               -num(r, "particles.width_exponent"))):
             done = r["status"] == "completed"
             sm = summary(d, r) if done else None
-            table.append([int(num(r, "particles.n_inf")), r["particles.width_exponent"], r["solver.width_mode"],
+            table.append([r["particles.n_inf"], r["particles.width_exponent"], r["solver.width_mode"],
                           num(r, "ref_mean_abs_error") if done else r["status"],
                           sm["reference"].get("mass_blob", {}).get("mean_abs_error", float("nan")) if sm else "-",
-                          num(r, "evaluations") if done else "-", num(r, "n_particles") if done else "-",
+                          r["evaluations"] if done else "-", r["n_particles"] if done else "-",
                           num(r, "wall_seconds")])
         md.append("## Widths with the best treatment (sphere)\n")
         md.append(md_table(["n_inf", "width_exponent q", "width_mode", "mean abs err M", "mean abs err M_rho",
@@ -611,7 +639,7 @@ def boundaries(sweeps, docs):
         md.append("")
     md.append("## Fitted slopes (error ~ n^-alpha, least squares in log-log, +- one standard error)\n")
     md.append(md_table(["case", "treatment", "alpha", "std. error", "error at largest n", "largest n"],
-                       [[c, v, a, sa, e, n] for c, v, a, sa, e, n in fits]))
+                       [[c, v, a, sa, e, str(n)] for c, v, a, sa, e, n in fits]))
     fig.tight_layout()
     fig.savefig(os.path.join(docs, "boundaries.png"), dpi=90)
     plt.close(fig)
