@@ -128,11 +128,15 @@ boundaries() {
       "${keys[@]}" --vary particles.n_inf=$pipe
   done
   # What limits the box: the bulk diffusivity at beta dr^2 = 2 (study 3: 1.12-1.26
-  # kappa); the same runs at beta dr^2 = 1 (calibrated within 3%).
+  # kappa); the same runs at beta dr^2 = 1 (calibrated within 3%), box and sphere.
   local bb="800,3200"
   [[ $size == smoke ]] && bb="300"
   sweep boundaries/box_best_beta1 "$ex/box_mixed.toml" --timeout 5400 --set run.t_end=$t_box \
     "${best_keys[@]}" --set particles.beta_factor=1 --vary particles.n_inf=$bb
+  local sb="400,800,1600,3200"
+  [[ $size == smoke ]] && sb="150"
+  sweep boundaries/sphere_best_beta1 "$ex/sphere_dirichlet.toml" --timeout 5400 --set run.t_end=$t_sphere \
+    "${best_keys[@]}" --set particles.beta_factor=1 --vary particles.n_inf=$sb
   # Widths with the best treatment: q = 1 (fixed beta dr^2), q < 1 (widths
   # shrinking more slowly than the spacing) and per-particle widths.
   local wn="400,1600"

@@ -605,21 +605,28 @@ def boundaries(sweeps, docs):
                 copy_data(d, os.path.join(docs, "data", "boundaries", f"{case}_{variant}"),
                           ["t", "mass_ratio", "reference_mass_ratio", "mass_blob_ratio", "mass_total", "mass_inside",
                            "n_particles", "n_outside"])
-    d = os.path.join(sweeps, "boundaries", "box_best_beta1")
-    if os.path.exists(os.path.join(d, "runs.csv")):
+    for case in ("box", "sphere"):
+        d = os.path.join(sweeps, "boundaries", f"{case}_best_beta1")
+        if not os.path.exists(os.path.join(d, "runs.csv")):
+            continue
         base = {}
-        d2 = os.path.join(sweeps, "boundaries", "box_best")
+        d2 = os.path.join(sweeps, "boundaries", f"{case}_best")
         if os.path.exists(os.path.join(d2, "runs.csv")):
             base = {r["particles.n_inf"]: r for r in read_rows(os.path.join(d2, "runs.csv"))}
         table = []
+        ns, e1 = [], []
         for r in sorted(read_rows(os.path.join(d, "runs.csv")), key=lambda r: num(r, "particles.n_inf")):
             b = base.get(r["particles.n_inf"], {})
             table.append([r["particles.n_inf"], num(b, "ref_mean_abs_error"), num(r, "ref_mean_abs_error"),
-                          num(b, "ref_max_abs_error"), num(r, "ref_max_abs_error"), num(r, "wall_seconds")])
-        md.append("## Box, best treatment: beta dr^2 = 2 against 1 (what limits the box)\n")
+                          num(b, "ref_max_abs_error"), num(r, "ref_max_abs_error"), num(b, "wall_seconds"),
+                          num(r, "wall_seconds")])
+            ns.append(num(r, "particles.n_inf"))
+            e1.append(num(r, "ref_mean_abs_error"))
+        _, a1, s1 = fit_slope(ns, e1)
+        md.append(f"## {case.capitalize()}, best treatment: beta dr^2 = 2 against 1\n")
         md.append(md_table(["n_inf", "mean abs err, beta dr^2 = 2", "mean abs err, beta dr^2 = 1",
-                            "max abs err, 2", "max abs err, 1", "wall [s] (1)"], table))
-        md.append("")
+                            "max abs err, 2", "max abs err, 1", "wall [s] (2)", "wall [s] (1)"], table))
+        md.append(f"\nbeta dr^2 = 1: alpha = {a1:.2f} +- {s1:.2f}\n")
     d = os.path.join(sweeps, "boundaries", "sphere_widths")
     if os.path.exists(os.path.join(d, "runs.csv")):
         rows = read_rows(os.path.join(d, "runs.csv"))
