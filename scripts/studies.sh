@@ -134,7 +134,7 @@ boundaries() {
   sweep boundaries/box_best_beta1 "$ex/box_mixed.toml" --timeout 5400 --set run.t_end=$t_box \
     "${best_keys[@]}" --set particles.beta_factor=1 --vary particles.n_inf=$bb
   local sb="400,800,1600,3200"
-  [[ $size == smoke ]] && sb="150"
+  [[ $size == smoke ]] && sb="400"
   sweep boundaries/sphere_best_beta1 "$ex/sphere_dirichlet.toml" --timeout 5400 --set run.t_end=$t_sphere \
     "${best_keys[@]}" --set particles.beta_factor=1 --vary particles.n_inf=$sb
   # Widths with the best treatment: q = 1 (fixed beta dr^2), q < 1 (widths
