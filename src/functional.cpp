@@ -289,6 +289,18 @@ void Functional::extend(const std::vector<Vec3>& x, const std::vector<double>& s
   }
 }
 
+void Functional::select_images(const std::vector<Vec3>& x, const std::vector<double>& s) {
+  // Each particle is mirrored across the walls within its list radius, with
+  // the skin the list is about to use (NeighborList::build's rule).
+  const NeighborOptions& no = options_.neighbor;
+  const double s_min = s.empty() ? 1.0 : *std::min_element(s.begin(), s.end());
+  const double skin = no.skin >= 0.0 ? no.skin : no.skin_factor * s_min;
+  std::vector<double> reach(x.size());
+  for (std::size_t p = 0; p < x.size(); ++p) reach[p] = cutoff_radius(s[p], no.kernel_tolerance) + skin;
+  images_.select(x, reach);
+  extend(x, s);
+}
+
 void Functional::rebuild_list(const std::vector<Vec3>& x, const std::vector<double>& s) {
   if (!images_.active()) {
     list_.build(x, s, per_);
@@ -296,15 +308,7 @@ void Functional::rebuild_list(const std::vector<Vec3>& x, const std::vector<doub
   }
   require(x.size() == m_.size() && s.size() == m_.size(), "configuration size", static_cast<double>(x.size()),
           "must match the reference set by set_reference()");
-  // Each particle is mirrored across the walls within its list radius, with
-  // the skin the list is about to use (NeighborList::build's rule).
-  const NeighborOptions& no = options_.neighbor;
-  double s_min = s.empty() ? 1.0 : *std::min_element(s.begin(), s.end());
-  const double skin = no.skin >= 0.0 ? no.skin : no.skin_factor * s_min;
-  std::vector<double> reach(x.size());
-  for (std::size_t p = 0; p < x.size(); ++p) reach[p] = cutoff_radius(s[p], no.kernel_tolerance) + skin;
-  images_.select(x, reach);
-  extend(x, s);
+  select_images(x, s);
   list_.build(x_ext_, s_ext_, per_);
   images_built_for_ = x.size();
 }
@@ -340,14 +344,8 @@ FunctionalParts Functional::evaluate_impl(const std::vector<Vec3>& x, const std:
     ensure_list(x, s);
   } else if (images) {
     // The same image set as a list build would choose, summed over all pairs.
-    const NeighborOptions& no = options_.neighbor;
-    const double s_min = s.empty() ? 1.0 : *std::min_element(s.begin(), s.end());
-    const double skin = no.skin >= 0.0 ? no.skin : no.skin_factor * s_min;
-    std::vector<double> reach(n);
-    for (std::size_t p = 0; p < n; ++p) reach[p] = cutoff_radius(s[p], no.kernel_tolerance) + skin;
-    images_.select(x, reach);
+    select_images(x, s);
     images_built_for_ = static_cast<std::size_t>(-1);  // the list no longer matches the selection
-    extend(x, s);
   }
   FunctionalParts parts;
   const bool widths = grad && options_.optimise_widths;

@@ -162,6 +162,7 @@ class Functional {
   std::vector<double> s_ext_, m_ext_;
   std::size_t images_built_for_ = 0;
   void extend(const std::vector<Vec3>& x, const std::vector<double>& s);
+  void select_images(const std::vector<Vec3>& x, const std::vector<double>& s);  // chooses images, then extend()
   void ensure_list(const std::vector<Vec3>& x, const std::vector<double>& s);
   FunctionalParts evaluate_impl(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad,
                                 bool all_pairs);
