@@ -55,9 +55,9 @@ implicit_explicit() {
     smoke) n_sphere=100; n_box=400; dts="0.5,4"; t_sphere=0.1; t_box=0.1 ;;
     full) n_sphere=6400; n_box=3200 ;;
   esac
-  sweep implicit_explicit/sphere "$ex/sphere_dirichlet.toml" --timeout 900 \
+  sweep implicit_explicit/sphere "$ex/sphere_dirichlet.toml" --timeout 900 "${papers_keys[@]}" \
     --set run.t_end=$t_sphere --set particles.n_inf=$n_sphere --vary "$schemes" --vary run.dt_factor=$dts
-  sweep implicit_explicit/box "$ex/box_mixed.toml" --timeout 900 \
+  sweep implicit_explicit/box "$ex/box_mixed.toml" --timeout 900 "${papers_keys[@]}" \
     --set run.t_end=$t_box --set particles.n_inf=$n_box --vary "$schemes" --vary run.dt_factor=$dts
 }
 
@@ -70,7 +70,7 @@ variable_width() {
   local widths="solver.width_mode:solver.width_metric=fixed:as_printed,per_particle:as_printed,per_particle:exact"
   sweep variable_width/free_space "$ex/free_space_heat.toml" --timeout 900 \
     --set particles.n_inf=$n_free --set run.dt=0.0025 --vary run.dim=1,2,3 --vary "$widths"
-  sweep variable_width/sphere "$ex/sphere_dirichlet.toml" --timeout 1800 \
+  sweep variable_width/sphere "$ex/sphere_dirichlet.toml" --timeout 1800 "${papers_keys[@]}" \
     --set run.t_end=$t_sphere --set particles.n_inf=$n_sphere --vary "$widths"
 }
 
@@ -93,20 +93,18 @@ convergence() {
   esac
   local t_sphere=1 t_box=4 t_pipe=0.5
   [[ $size == smoke ]] && { t_sphere=0.05; t_box=0.2; t_pipe=0.02; }
-  sweep convergence/sphere "$ex/sphere_dirichlet.toml" --timeout 3600 --set run.t_end=$t_sphere \
+  sweep convergence/sphere "$ex/sphere_dirichlet.toml" --timeout 3600 "${papers_keys[@]}" --set run.t_end=$t_sphere \
     --vary particles.n_inf=$sphere
-  sweep convergence/box "$ex/box_mixed.toml" --timeout 3600 --set run.t_end=$t_box --vary particles.n_inf=$box
-  sweep convergence/pipe "$ex/pipe_neumann.toml" --timeout 3600 --set run.t_end=$t_pipe --vary particles.n_inf=$pipe
+  sweep convergence/box "$ex/box_mixed.toml" --timeout 3600 "${papers_keys[@]}" --set run.t_end=$t_box --vary particles.n_inf=$box
+  sweep convergence/pipe "$ex/pipe_neumann.toml" --timeout 3600 "${papers_keys[@]}" --set run.t_end=$t_pipe --vary particles.n_inf=$pipe
 }
 
 # Study 5: the papers' boundary treatment against the converging one (issue 10),
 # same sizes and horizons as study 4 except the pipe (T = 6). "papers" is the
 # papers' spacing rule and treatment; "best" the true spacing with images at
 # no-flux walls, an odd-profile Dirichlet reservoir and outlets that deliver.
-papers_keys=(--set particles.spacing_rule=sphere_radius --set treatment.no_flux=barrier
-             --set treatment.dirichlet=layer --set treatment.neumann_outflow=layer)
-best_keys=(--set particles.spacing_rule=cube --set treatment.no_flux=images --set treatment.dirichlet=reservoir
-           --set treatment.reservoir_profile=odd --set treatment.neumann_outflow=nearest)
+papers_keys=(--set treatment.preset=papers)
+best_keys=(--set treatment.preset=converging)
 boundaries() {
   # The pipe at T = 6: with the papers' outlet the owed outflow makes the
   # particle count grow about tenfold, and with images every particle of the
@@ -118,8 +116,14 @@ boundaries() {
     smoke) sphere="100,150"; box="300,400"; pipe="100,200"; t_sphere=0.05; t_box=0.2; t_pipe=0.02 ;;
     full) sphere="400,800,1600,3200,6400,12800,25600"; box="400,800,1600,3200,6400"; pipe="1000,2000,4000" ;;
   esac
+  # The pipe's balance does not depend on the stepper: the same ladder with the
+  # explicit scheme (dt = dt_explicit, one evaluation per step) reaches 4000.
+  local pe="1000,2000,4000"
+  [[ $size == smoke ]] && pe="100"
   for variant in papers best; do
     local -n keys="${variant}_keys"
+    sweep boundaries/pipe_explicit_$variant "$ex/pipe_neumann.toml" --timeout 5400 --set run.t_end=$t_pipe \
+      --set solver.stepper=explicit "${keys[@]}" --vary particles.n_inf=$pe
     sweep boundaries/sphere_$variant "$ex/sphere_dirichlet.toml" --timeout 5400 --set run.t_end=$t_sphere \
       "${keys[@]}" --vary particles.n_inf=$sphere
     sweep boundaries/box_$variant "$ex/box_mixed.toml" --timeout 5400 --set run.t_end=$t_box \
@@ -129,7 +133,7 @@ boundaries() {
   done
   # What limits the box: the bulk diffusivity at beta dr^2 = 2 (study 3: 1.12-1.26
   # kappa); the same runs at beta dr^2 = 1 (calibrated within 3%), box and sphere.
-  local bb="800,3200"
+  local bb="800,1600,3200"
   [[ $size == smoke ]] && bb="300"
   sweep boundaries/box_best_beta1 "$ex/box_mixed.toml" --timeout 5400 --set run.t_end=$t_box \
     "${best_keys[@]}" --set particles.beta_factor=1 --vary particles.n_inf=$bb

@@ -100,7 +100,7 @@ std::vector<MirrorWallPtr> mirror_walls(const Domain& domain, const std::vector<
   for (int p = 0; p < domain.num_patches(); ++p) {
     MirrorWallPtr w = domain.patch_wall(p);
     require(w != nullptr, "mirror wall of patch", domain.patch_name(p),
-            "this domain has no wall surface for image blobs (use the barrier)");
+            "this domain has no wall surface for image blobs");
     if (std::find(open_patches.begin(), open_patches.end(), p) != open_patches.end()) open.push_back(w);
     if (std::find(all.begin(), all.end(), w) == all.end()) all.push_back(w);
   }

@@ -106,9 +106,27 @@ TEST(Config, EveryKeyIsDocumented) {
 }
 
 TEST(Config, TreatmentKeysReachTheRun) {
-  Simulation papers(parse_config_string(kBase));
+  Simulation papers(parse_config_string(kBase, {"treatment.preset=papers"}));
   EXPECT_EQ(papers.derived().mirrored_walls, 0);
   EXPECT_EQ(papers.derived().reservoir_width, 0.0);
+  EXPECT_EQ(papers.config().particles.spacing_rule, "sphere_radius");
+  // The default preset ("converging"): the odd reservoir, whose back face is mirrored, and the true spacing.
+  Simulation converging(parse_config_string(kBase));
+  EXPECT_EQ(converging.config().treatment.preset, "converging");
+  EXPECT_EQ(converging.config().treatment.dirichlet, "reservoir");
+  EXPECT_EQ(converging.config().treatment.reservoir_profile, "odd");
+  EXPECT_EQ(converging.config().particles.spacing_rule, "cube");
+  EXPECT_EQ(converging.derived().mirrored_walls, 1);
+  EXPECT_GT(converging.derived().reservoir_width, 0.0);
+  // A key set beside the preset wins over it, wherever it stands.
+  const Config mixed = parse_config_string(kBase + "[treatment]\nno_flux = \"barrier\"\npreset = \"converging\"\n",
+                                           {"treatment.neumann_outflow=layer"});
+  EXPECT_EQ(mixed.treatment.no_flux, "barrier");
+  EXPECT_EQ(mixed.treatment.neumann_outflow, "layer");
+  EXPECT_EQ(mixed.treatment.dirichlet, "reservoir");
+  const Config explicit_rule = parse_config_string(kBase, {"treatment.preset=papers", "particles.spacing_rule=cube"});
+  EXPECT_EQ(explicit_rule.particles.spacing_rule, "cube");
+  EXPECT_EQ(parse_config_string(kBase, {"treatment.preset=papers", "run.dim=2"}).particles.spacing_rule, "cube");
   Simulation reservoir(parse_config_string(kBase, {"particles.n_inf=1600", "treatment.dirichlet=reservoir",
                                                    "treatment.reservoir_width=1.5", "treatment.reservoir_profile=odd"}));
   const Derived& d = reservoir.derived();
@@ -122,10 +140,13 @@ TEST(Config, TreatmentKeysReachTheRun) {
   EXPECT_EQ(again.treatment.dirichlet, "reservoir");
   EXPECT_DOUBLE_EQ(again.treatment.reservoir_width, 1.5);
   EXPECT_EQ(again.treatment.reservoir_profile, "odd");
-  // A box with one Dirichlet face: images at the five others.
+  // A box with one Dirichlet face: images at the five others (papers' layer),
+  // and the reservoir's back face as well under the default preset.
   Simulation box(parse_config_file(std::filesystem::path(OTFP_SOURCE_DIR) / "examples" / "box_mixed.toml",
-                                   {"treatment.no_flux=images"}));
+                                   {"treatment.preset=papers", "treatment.no_flux=images"}));
   EXPECT_EQ(box.derived().mirrored_walls, 5);
+  Simulation box_default(parse_config_file(std::filesystem::path(OTFP_SOURCE_DIR) / "examples" / "box_mixed.toml"));
+  EXPECT_EQ(box_default.derived().mirrored_walls, 6);
 }
 
 TEST(Config, SetUsesTheTypeOfTheKey) {
@@ -178,7 +199,8 @@ TEST(Config, BadConfigurationsNameTheirKey) {
       {"infinite t_end", kBase, {"run.t_end=inf"}, "run.t_end"},
       {"empty ball", kBase, {"domain.radius=0"}, "domain.radius"},
       {"empty box", "[domain]\ntype = \"box\"\nlo = [0, 0, 0]\nhi = [1, 0, 1]\n", {}, "domain.hi"},
-      {"b larger than the domain", kBase, {"particles.layer_b=1.5"}, "particles.layer_b"},
+      {"b larger than the domain", kBase, {"treatment.preset=papers", "particles.layer_b=1.5"}, "particles.layer_b"},
+      {"unknown preset", kBase, {"treatment.preset=paper"}, "treatment.preset"},
       {"missing patch kind", kBase + "[[boundary]]\npatch = \"orifice\"\nvalue = 1.0\n", {}, "boundary[1].kind"},
       {"missing patch name", kBase + "[[boundary]]\nkind = \"neumann\"\nvalue = 1.0\n", {}, "boundary[1].patch"},
       {"unknown patch name", kBase, {"boundary.0.patch=north"}, "boundary[0].patch"},
@@ -273,17 +295,19 @@ TEST(Config, EveryExampleIsValid) {
   EXPECT_GE(count, 6);
 }
 
-// The papers' parameter rules come out of the example configurations.
+// The papers' parameter rules come out of the example configurations with
+// treatment.preset = "papers".
 TEST(Config, ExamplesReproduceThePapersTables) {
   {
-    Simulation s(parse_config_file(kSource / "examples" / "sphere_dirichlet.toml", {"particles.n_inf=1600"}));
+    Simulation s(parse_config_file(kSource / "examples" / "sphere_dirichlet.toml",
+                                   {"particles.n_inf=1600", "treatment.preset=papers"}));
     EXPECT_NEAR(s.derived().dr, 0.085498797, 1e-8);      // Table 1
     EXPECT_NEAR(s.derived().beta, 273.59615, 1e-4);
     EXPECT_NEAR(s.derived().particle_mass, 6.25e-4, 1e-15);
     EXPECT_NEAR(s.derived().layer_b, std::sqrt(0.085498797), 1e-8);
   }
   {
-    Simulation s(parse_config_file(kSource / "examples" / "box_mixed.toml"));
+    Simulation s(parse_config_file(kSource / "examples" / "box_mixed.toml", {"treatment.preset=papers"}));
     EXPECT_NEAR(s.derived().dr, 0.10607847, 1e-7);       // Table 2, n_inf = 400
     EXPECT_NEAR(s.derived().beta, 177.73604, 1e-4);
     EXPECT_NEAR(s.derived().particle_mass, 2.5, 1e-12);
@@ -291,7 +315,7 @@ TEST(Config, ExamplesReproduceThePapersTables) {
     EXPECT_NEAR(*s.derived().J_inf, 500.0, 1e-9);          // (48)
   }
   {
-    Simulation s(parse_config_file(kSource / "examples" / "pipe_neumann.toml", {"run.t_end=6"}));
+    Simulation s(parse_config_file(kSource / "examples" / "pipe_neumann.toml", {"run.t_end=6", "treatment.preset=papers"}));
     EXPECT_NEAR(s.derived().dr, 0.0721, 1e-4);           // Table 3, n_initial = 1000
     EXPECT_NEAR(s.derived().layer_b, 0.190, 1e-3);
     EXPECT_NEAR(s.derived().dt, 0.0052, 1e-5);
@@ -356,9 +380,9 @@ TEST(Config, CommandLineRejectsBeforeCreatingTheOutputDirectory) {
 
 TEST(Config, CheckPrintsTheResolvedConfiguration) {
   const std::string config = (kSource / "examples" / "box_mixed.toml").string();
-  const char* argv[] = {"otfp", "check", config.c_str(), "--set", "particles.n_inf=800"};
+  const char* argv[] = {"otfp", "check", config.c_str(), "--set", "particles.n_inf=800", "--set", "treatment.preset=papers"};
   std::ostringstream out, err;
-  EXPECT_EQ(cli_main(5, argv, out, err), 0) << err.str();
+  EXPECT_EQ(cli_main(7, argv, out, err), 0) << err.str();
   const nlohmann::json j = nlohmann::json::parse(out.str());
   EXPECT_EQ(j["config"]["particles"]["n_inf"], 800);
   // Table 2, n_inf = 800 (the table differs from (3 m_p / (4 pi rho))^(1/3) in its 8th digit).
@@ -401,22 +425,31 @@ TEST(Config, WidthExponent) {
   EXPECT_EQ(rejection(kBase, {"particles.width_exponent=2.5"}).rfind("particles.width_exponent = 2.5: must be in (0, 2]", 0),
             0u);
   EXPECT_EQ(rejection(kBase, {"particles.width_reference_n=0"}), "particles.width_reference_n = 0: must be >= 1");
-  EXPECT_EQ(rejection(kBase, {"particles.width_exponent=2"}), "");
+  // (papers preset: the odd reservoir of a 100-particle ball cannot mirror a band this wide)
+  EXPECT_EQ(rejection(kBase, {"particles.width_exponent=2", "treatment.preset=papers"}), "");
 }
 
 // The sphere-radius rule is 1.61 times below the true spacing: beta dr_true^2 = 2 x 2.60
-// (docs/configuration.md, "Spacing and width").
+// with treatment.preset = "papers"; the default preset takes the true spacing, so
+// beta dr_true^2 is beta_factor (docs/configuration.md, "Spacing and width").
 TEST(Config, ExamplesBetaTimesTrueSpacingSquared) {
-  const std::vector<std::pair<std::string, double>> expect = {
-      {"sphere_dirichlet.toml", 5.1970}, {"box_mixed.toml", 5.1970},       {"pipe_neumann.toml", 2.5985},
-      {"free_space_heat.toml", 2.0},     {"periodic_cosine.toml", 2.0},    {"sphere_injection.toml", 5.1970},
-      {"square_pipe_occlusion.toml", 2.5985}};
-  for (const auto& [name, value] : expect) {
-    const Simulation s(parse_config_file(kSource / "examples" / name));
-    EXPECT_NEAR(s.derived().beta_true_spacing2, value, 1e-4) << name;
-    EXPECT_NEAR(s.derived().true_spacing, std::pow(s.derived().volume / static_cast<double>(s.config().particles.n_inf),
-                                                   1.0 / s.config().run.dim),
-                1e-15)
-        << name;
-  }
+  struct Expect {
+    std::string name;
+    double converging, papers;
+  };
+  const std::vector<Expect> expect = {{"sphere_dirichlet.toml", 2.0, 5.1970},      {"box_mixed.toml", 2.0, 5.1970},
+                                      {"pipe_neumann.toml", 1.0, 2.5985},          {"free_space_heat.toml", 2.0, 2.0},
+                                      {"periodic_cosine.toml", 2.0, 2.0},          {"sphere_injection.toml", 2.0, 5.1970},
+                                      {"square_pipe_occlusion.toml", 1.0, 2.5985}};
+  for (const Expect& e : expect)
+    for (const bool papers : {false, true}) {
+      std::vector<std::string> sets;
+      if (papers) sets.push_back("treatment.preset=papers");
+      const Simulation s(parse_config_file(kSource / "examples" / e.name, sets));
+      EXPECT_NEAR(s.derived().beta_true_spacing2, papers ? e.papers : e.converging, 1e-4) << e.name << " " << papers;
+      EXPECT_NEAR(s.derived().true_spacing,
+                  std::pow(s.derived().volume / static_cast<double>(s.config().particles.n_inf), 1.0 / s.config().run.dim),
+                  1e-15)
+          << e.name;
+    }
 }

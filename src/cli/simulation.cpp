@@ -462,7 +462,8 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
         if (tr.no_flux == "images") walls = mirror_walls(*domain_, inflated);
       }
     } catch (const InvalidArgument& e) {
-      throw ConfigError("treatment.no_flux", "\"" + tr.no_flux + "\"", std::string("walls: ") + e.what());
+      throw ConfigError("treatment.no_flux", "\"" + tr.no_flux + "\"",
+                        std::string("walls: ") + e.what() + "; set treatment.no_flux = \"barrier\"");
     }
   } else if (tr.no_flux == "images" && !free_space_ && domain_->is_periodic()) {
     // A periodic box has no walls: nothing to mirror.
@@ -579,7 +580,8 @@ nlohmann::json Simulation::describe() const {
                    {"kernel_tolerance", s.kernel_tolerance},
                    {"skin_factor", s.skin_factor}};
   const TreatmentSection& tr = c.treatment;
-  cfg["treatment"] = {{"no_flux", tr.no_flux},
+  cfg["treatment"] = {{"preset", tr.preset},
+                      {"no_flux", tr.no_flux},
                       {"dirichlet", tr.dirichlet},
                       {"reservoir_width", tr.reservoir_width},
                       {"reservoir_sublayers", tr.reservoir_sublayers},
@@ -1131,7 +1133,23 @@ RunResult Simulation::run(const RunOptions& options) {
       show_progress(r, r.step == d.steps_to_run);
     };
 
-    emit(diagnostics(0, 0.0, nullptr, 0, 0));
+    // The reservoir is the bath outside the Dirichlet face: it holds density g
+    // from t = 0, so it is filled before the first step (a zero-length
+    // projection: Neumann patches move nothing). Otherwise nothing can cross
+    // the face during step 1 and M lags Crank by a whole step. Counted as
+    // insertions of step 0. The papers' layer starts empty, as in Algorithm 1.
+    std::int64_t ins0 = 0, rem0 = 0;
+    if (c.treatment.dirichlet == "reservoir" && !st.projection->dirichlet_patches().empty()) {
+      *st.step_window = {0.0, 0.0};
+      const PatchLedger pl = st.projection->apply(particles, 0.0, 0.0, rng);
+      ins0 = pl.inserted;
+      rem0 = pl.removed;
+      mass_in_total += pl.mass_inserted;
+      mass_out_total += pl.mass_removed;
+      inserted_total += ins0;
+      removed_total += rem0;
+    }
+    emit(diagnostics(0, 0.0, nullptr, ins0, rem0));
 
     const bool advect_on = c.physics.velocity.head(dim).squaredNorm() > 0.0;
     const Vec3 u = c.physics.velocity;

@@ -60,7 +60,7 @@ struct DomainSection {
 struct ParticlesSection {
   std::int64_t n_inf = 400;
   std::optional<double> mass;
-  std::string spacing_rule = "cube";  // cube | sphere_radius
+  std::string spacing_rule = "cube";  // cube | sphere_radius (default: cube; sphere_radius in 3-D under treatment.preset = "papers")
   double beta_factor = 2.0;
   double width_exponent = 1.0;            // q: s = s_rule(dr) (dr / dr_ref)^(q - 1), in (0, 2]
   std::int64_t width_reference_n = 400;   // n at which dr_ref is taken (>= 1)
@@ -114,13 +114,16 @@ struct SolverSection {
 
 // How the boundaries are treated (docs/boundaries.md): the papers' way or the
 // treatments that converge (issue 10).
+// The defaults are the "converging" preset (docs/validation.md, study 5);
+// treatment.preset = "papers" restores Sec. 4.2 (see apply_treatment_preset).
 struct TreatmentSection {
-  std::string no_flux = "barrier";          // barrier | images (image blobs at every non-Dirichlet wall)
-  std::string dirichlet = "layer";          // layer (Sec. 4.2) | reservoir (persistent band outside the face)
+  std::string preset = "converging";        // converging | papers: the defaults of the keys below
+  std::string no_flux = "images";           // barrier | images (image blobs at every non-Dirichlet wall)
+  std::string dirichlet = "reservoir";      // layer (Sec. 4.2) | reservoir (persistent band outside the face)
   double reservoir_width = 1.0;             // band thickness in units of the kernel cut-off r_c of the blobs
   std::int64_t reservoir_sublayers = 0;     // 0: round(2 w / dr), half a spacing per sublayer
-  std::string reservoir_profile = "uniform";  // uniform (g) | odd (2 g - interior mirror density)
-  std::string neumann_outflow = "layer";    // layer (B_l only) | nearest (beyond B_l when it runs empty)
+  std::string reservoir_profile = "odd";    // uniform (g) | odd (2 g - interior mirror density)
+  std::string neumann_outflow = "nearest";  // layer (B_l only) | nearest (beyond B_l when it runs empty)
   std::string stranded = "keep";            // keep | absorb: particles beyond a Dirichlet face (layer treatment)
 };
 
