@@ -83,6 +83,20 @@ diffusivity() {
   sweep diffusivity "$ex/periodic_cosine.toml" --timeout 900 --set particles.n_inf=$n --set run.t_end=$t_end \
     --vary particles.beta_factor=$betas --vary particles.fill_arrangement=lattice,random --vary "$schemes" \
     --vary run.dt_factor=$dts
+  # The same mode in a closed box (no-flux walls): image blobs against the
+  # barrier alone, implicit Ceres at dt = 0.25 dt_expl (issue 10).
+  sweep diffusivity/closed_box "$ex/periodic_cosine.toml" --timeout 900 --set domain.type=box --set particles.n_inf=$n \
+    --set run.t_end=$t_end --set run.dt_factor=0.25 --vary treatment.no_flux=barrier,images \
+    --vary particles.beta_factor=$betas --vary particles.fill_arrangement=lattice,random
+  # A uniform state must stay uniform next to the walls: random fills of a
+  # closed square relaxed over 20 dr^2 / kappa, 16 seeds per treatment.
+  local nu=4096 seeds="1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16"
+  [[ $size == smoke ]] && { nu=256; seeds="1"; }
+  local tu
+  tu=$("$py" -c "print(20.0 / $nu)")
+  sweep diffusivity/uniform_box "$ex/periodic_cosine.toml" --timeout 900 --set domain.type=box --set diagnostics.reference=none \
+    --set particles.fill=uniform --set particles.fill_arrangement=random --set particles.n_inf=$nu \
+    --set run.t_end="$tu" --set run.dt_factor=0.25 --vary treatment.no_flux=barrier,images --vary run.seed=$seeds
 }
 
 convergence() {

@@ -761,9 +761,18 @@ void validate(const Config& c) {
   if (g.J_inf) positive(*g.J_inf, "diagnostics.J_inf");
   if (g.reference_radius) positive(*g.reference_radius, "diagnostics.reference_radius");
   if (g.reference_length) positive(*g.reference_length, "diagnostics.reference_length");
-  if (g.reference == "cosine_mode" && (type != "periodic_box" || pa.fill != "cosine"))
+  // cos(k (x - lo)) with k = 2 pi m / L is a mode of the periodic box and,
+  // its slope vanishing at both ends, of a closed box (no-flux walls only).
+  if (g.reference == "cosine_mode" && (type != "periodic_box" && type != "box"))
     throw ConfigError("diagnostics.reference", "\"cosine_mode\"",
-                      "needs domain.type = \"periodic_box\" and particles.fill = \"cosine\"");
+                      "needs domain.type = \"periodic_box\" or a closed \"box\", and particles.fill = \"cosine\"");
+  if (g.reference == "cosine_mode" && pa.fill != "cosine")
+    throw ConfigError("diagnostics.reference", "\"cosine_mode\"", "needs particles.fill = \"cosine\"");
+  if (g.reference == "cosine_mode" && type == "box")
+    for (std::size_t i = 0; i < c.boundary.size(); ++i)
+      if (c.boundary[i].kind != "no_flux")
+        throw ConfigError(fmt::format("boundary[{}].kind", i), quoted(c.boundary[i].kind),
+                          "diagnostics.reference = \"cosine_mode\" on a box needs every wall no-flux (a closed box)");
   if (g.reference == "cosine_mode" && !(pa.fill_amplitude > 0.0))
     throw ConfigError("particles.fill_amplitude", shown(pa.fill_amplitude),
                       "must be > 0 with diagnostics.reference = \"cosine_mode\" (the mode to follow)");
