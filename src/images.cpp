@@ -27,13 +27,15 @@ class PlaneWall final : public MirrorWall {
 // Sphere and cylinder side share y = x + 2 (R - r) n with r = |q|, n = q / r,
 // q the offset from the centre (or from the axis, tangential part removed by P).
 // J = I - 2 n n^T + 2 (R - r) / r (P - n n^T), P = I (sphere) or I - u u^T (cylinder).
+// The same map serves an obstacle (domain outside): only the distance's sign differs.
 class RoundWall final : public MirrorWall {
  public:
-  RoundWall(int dim, const Vec3& c, double radius, const Vec3& axis, bool cylinder)
-      : dim_(dim), c_(c), r_(radius), u_(axis.normalized()), cylinder_(cylinder) {
+  RoundWall(int dim, const Vec3& c, double radius, const Vec3& axis, bool cylinder, WallSide side)
+      : dim_(dim), c_(c), r_(radius), u_(axis.normalized()), cylinder_(cylinder),
+        sign_(side == WallSide::DomainInside ? 1.0 : -1.0) {
     for (int k = dim_; k < 3; ++k) c_[k] = 0.0;
   }
-  double distance(const Vec3& x) const override { return offset(x).norm() - r_; }
+  double distance(const Vec3& x) const override { return sign_ * (offset(x).norm() - r_); }
   Vec3 reflect(const Vec3& x, Mat3* jac) const override {
     const Vec3 q = offset(x);
     const double r = q.norm();
@@ -69,6 +71,7 @@ class RoundWall final : public MirrorWall {
   double r_;
   Vec3 u_;
   bool cylinder_;
+  double sign_;  // +1: the domain is inside the round wall, -1: outside (an obstacle)
 };
 
 }  // namespace
@@ -80,18 +83,18 @@ MirrorWallPtr make_plane_wall(const Vec3& point, const Vec3& outward_normal) {
   return std::make_shared<PlaneWall>(point, outward_normal);
 }
 
-MirrorWallPtr make_sphere_wall(int dim, const Vec3& center, double radius) {
+MirrorWallPtr make_sphere_wall(int dim, const Vec3& center, double radius, WallSide side) {
   require(dim >= 1 && dim <= 3, "dim", dim, "must be 1, 2 or 3");
   require(center.allFinite(), "sphere wall center", center.norm(), "must be finite");
   require(std::isfinite(radius) && radius > 0.0, "sphere wall radius", radius, "must be finite and > 0");
-  return std::make_shared<RoundWall>(dim, center, radius, Vec3::UnitX(), false);
+  return std::make_shared<RoundWall>(dim, center, radius, Vec3::UnitX(), false, side);
 }
 
-MirrorWallPtr make_cylinder_wall(const Vec3& axis_point, const Vec3& axis, double radius) {
+MirrorWallPtr make_cylinder_wall(const Vec3& axis_point, const Vec3& axis, double radius, WallSide side) {
   require(axis_point.allFinite(), "cylinder wall axis point", axis_point.norm(), "must be finite");
   require(axis.allFinite() && axis.norm() > 0.0, "cylinder wall axis", axis.norm(), "must be finite and nonzero");
   require(std::isfinite(radius) && radius > 0.0, "cylinder wall radius", radius, "must be finite and > 0");
-  return std::make_shared<RoundWall>(3, axis_point, radius, axis, true);
+  return std::make_shared<RoundWall>(3, axis_point, radius, axis, true, side);
 }
 
 std::vector<MirrorWallPtr> mirror_walls(const Domain& domain, const std::vector<int>& open_patches) {

@@ -82,6 +82,29 @@ TEST(MirrorWall, CylinderSideReflectsRadiallyAndKeepsTheAxialCoordinate) {
   expect_jacobian(*w, x, 3);
 }
 
+// An obstacle (domain outside the round wall): the same reflection, the
+// distance negative outside the obstacle, so a point in the domain maps into it.
+TEST(MirrorWall, ObstacleWallsHaveTheDomainOutside) {
+  const Vec3 a(0.2, -0.1, 0.4), u = Vec3(1.0, 0.5, -0.3).normalized();
+  auto cyl = make_cylinder_wall(a, u, 0.6, WallSide::DomainOutside);
+  const Vec3 x = a + 1.3 * u + 0.75 * Vec3(0.5, -1.0, 0.0).cross(u).normalized();  // 0.15 outside the obstacle
+  EXPECT_NEAR(cyl->distance(x), -0.15, 1e-13);
+  const Vec3 y = cyl->reflect(x, nullptr);
+  EXPECT_NEAR(cyl->distance(y), 0.15, 1e-13);
+  EXPECT_NEAR((y - a).dot(u), (x - a).dot(u), 1e-13);
+  expect_jacobian(*cyl, x, 3);
+  auto disc = make_sphere_wall(2, Vec3(0.5, 0.5, 0.0), 0.25, WallSide::DomainOutside);
+  const Vec3 p(0.5, 0.8, 0.0);
+  EXPECT_NEAR(disc->distance(p), -0.05, 1e-14);
+  EXPECT_NEAR((disc->reflect(p, nullptr) - Vec3(0.5, 0.7, 0.0)).norm(), 0.0, 1e-14);
+  expect_jacobian(*disc, p, 2);
+  // reflect_inside puts a point that entered the obstacle back into the domain.
+  std::vector<Vec3> pts = {Vec3(0.5, 0.72, 0.0), Vec3(0.5, 0.9, 0.0)};
+  EXPECT_EQ(reflect_inside({disc}, pts), 1u);
+  EXPECT_NEAR((pts[0] - Vec3(0.5, 0.78, 0.0)).norm(), 0.0, 1e-14);
+  EXPECT_EQ(pts[1], Vec3(0.5, 0.9, 0.0));
+}
+
 TEST(WallImages, CornersGetImagesOfImages) {
   auto box = make_box(3, Vec3::Zero(), Vec3(2.0, 1.0, 1.0));
   WallImages images(mirror_walls(*box));

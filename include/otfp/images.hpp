@@ -41,11 +41,16 @@ using MirrorWallPtr = std::shared_ptr<const MirrorWall>;
 
 // Plane through `point` with the domain on the side opposite to `outward_normal`.
 MirrorWallPtr make_plane_wall(const Vec3& point, const Vec3& outward_normal);
+// Which side of a round wall the domain lies on: inside a ball or pipe, or
+// outside an obstacle.
+enum class WallSide { DomainInside, DomainOutside };
+
 // Sphere (d = 3), circle (d = 2) or the two end points of an interval (d = 1)
-// of the given radius; the domain is inside.
-MirrorWallPtr make_sphere_wall(int dim, const Vec3& center, double radius);
-// Side of an infinite circular cylinder through `axis_point` along `axis`; the domain is inside.
-MirrorWallPtr make_cylinder_wall(const Vec3& axis_point, const Vec3& axis, double radius);
+// of the given radius.
+MirrorWallPtr make_sphere_wall(int dim, const Vec3& center, double radius, WallSide side = WallSide::DomainInside);
+// Side of an infinite circular cylinder through `axis_point` along `axis`.
+MirrorWallPtr make_cylinder_wall(const Vec3& axis_point, const Vec3& axis, double radius,
+                                 WallSide side = WallSide::DomainInside);
 
 class Domain;
 

@@ -1,5 +1,7 @@
 #include "domain_setup.hpp"
 
+#include "otfp/images.hpp"
+
 #include <fmt/format.h>
 
 #include <algorithm>
@@ -79,6 +81,15 @@ class SquarePipeObstacle final : public Domain {
   int dim() const override { return dim_; }
   int num_patches() const override { return 2 * dim_ + 1; }
   int obstacle() const { return 2 * dim_; }
+  // Image blobs: the faces are planes, the obstacle a round wall with the domain outside.
+  std::shared_ptr<const MirrorWall> patch_wall(int p) const override {
+    if (p < 0 || p > obstacle()) throw InvalidArgument("patch = " + std::to_string(p) + ": out of range");
+    if (p == obstacle())
+      return dim_ == 3 ? make_cylinder_wall(c_, Vec3::Unit(axis_), r_, WallSide::DomainOutside)
+                       : make_sphere_wall(2, c_, r_, WallSide::DomainOutside);
+    const Vec3 e = Vec3::Unit(p / 2);
+    return p % 2 == 0 ? make_plane_wall(lo_, -e) : make_plane_wall(hi_, e);
+  }
   std::string patch_name(int p) const override {
     static const char* kNames[6] = {"x-", "x+", "y-", "y+", "z-", "z+"};
     if (p == obstacle()) return "obstacle";
