@@ -333,7 +333,10 @@ TEST(Cli, LedgerHoldsForEveryExampleAndStepper) {
          {std::vector<std::string>{}, std::vector<std::string>{"solver.backend=nlopt"},
           std::vector<std::string>{"solver.stepper=explicit"},
           std::vector<std::string>{"solver.stepper=explicit", "solver.explicit_scheme=rk4"}}) {
-      std::vector<std::string> sets = {"run.max_steps=3", "run.vtk_interval=0"};
+      // A half-width reservoir band (the default one holds ~7x the sphere's
+      // particles at n_inf = 400 and its first steps cost ~100 evaluations);
+      // the ledger does not depend on the width.
+      std::vector<std::string> sets = {"run.max_steps=3", "run.vtk_interval=0", "treatment.reservoir_width=0.5"};
       sets.insert(sets.end(), variant.begin(), variant.end());
       SCOPED_TRACE(entry.path().filename().string() + (variant.empty() ? "" : " " + variant.back()));
       const RunResult r = run_config(parse_config_file(entry.path(), sets));
@@ -414,22 +417,32 @@ TEST(Cli, ClosedBoxWithImagesDecaysLikeThePeriodicBox) {
 
 TEST(Cli, SameSeedGivesIdenticalSeriesDifferentSeedDoesNot) {
   const fs::path a = fresh_dir("seed_a"), b = fresh_dir("seed_b"), c = fresh_dir("seed_c");
-  const std::vector<std::string> sets = {"run.max_steps=15", "run.vtk_interval=0"};
-  std::vector<std::string> other = sets;
-  other.push_back("run.seed=2");
-  ASSERT_EQ(run_example("sphere_dirichlet.toml", sets, a).exit_code, 0);
-  ASSERT_EQ(run_example("sphere_dirichlet.toml", sets, b).exit_code, 0);
-  ASSERT_EQ(run_example("sphere_dirichlet.toml", other, c).exit_code, 0);
-  const std::string sa = read_text(a / "series.csv"), sb = read_text(b / "series.csv"), sc = read_text(c / "series.csv");
-  EXPECT_EQ(lines_of(sa).size(), 17u);  // header + steps 0..15
-  EXPECT_EQ(sa, sb);
-  EXPECT_NE(sa, sc);
-  for (const fs::path& p : {a, b, c}) fs::remove_all(p);
+  // The papers' layer over 15 steps, and the reservoir (random refills, a
+  // half-width band to keep it cheap) over 3.
+  for (const bool papers : {true, false}) {
+    std::vector<std::string> sets = {"run.vtk_interval=0"};
+    if (papers) {
+      sets.insert(sets.end(), {"run.max_steps=15", "treatment.preset=papers"});
+    } else {
+      sets.insert(sets.end(), {"run.max_steps=3", "treatment.reservoir_width=0.5"});
+    }
+    std::vector<std::string> other = sets;
+    other.push_back("run.seed=2");
+    ASSERT_EQ(run_example("sphere_dirichlet.toml", sets, a).exit_code, 0);
+    ASSERT_EQ(run_example("sphere_dirichlet.toml", sets, b).exit_code, 0);
+    ASSERT_EQ(run_example("sphere_dirichlet.toml", other, c).exit_code, 0);
+    const std::string sa = read_text(a / "series.csv"), sb = read_text(b / "series.csv"), sc = read_text(c / "series.csv");
+    EXPECT_EQ(lines_of(sa).size(), papers ? 17u : 5u);  // header + steps 0..15 (0..3)
+    EXPECT_EQ(sa, sb);
+    EXPECT_NE(sa, sc);
+    for (const fs::path& p : {a, b, c}) fs::remove_all(p);
+  }
 }
 
 TEST(Cli, OutputFilesAreCompleteAndVtkParses) {
   const fs::path dir = fresh_dir("vtk");
-  const RunResult r = run_example("sphere_dirichlet.toml", {"run.max_steps=10", "run.vtk_interval=4"}, dir);
+  const RunResult r =
+      run_example("sphere_dirichlet.toml", {"run.max_steps=10", "run.vtk_interval=4", "treatment.preset=papers"}, dir);
   ASSERT_EQ(r.exit_code, 0) << r.error;
 
   // series.csv: header with the required columns, one complete row per step.
