@@ -26,12 +26,14 @@ DEFAULT = [
     ("free_space_heat.toml", []),
     ("periodic_cosine.toml", []),
 ]
-# The largest of the papers' sizes that run here in minutes (one thread).
+# The largest of the papers' sizes that run here in minutes (one thread),
+# as the papers ran them (their treatment, spacing and horizons).
+PAPERS = "treatment.preset=papers"
 LARGE = [
-    ("sphere_dirichlet.toml", ["particles.n_inf=3200"]),
-    ("box_mixed.toml", ["particles.n_inf=1600"]),
-    ("pipe_neumann.toml", ["particles.n_inf=4000"]),
-    ("sphere_injection.toml", ["particles.n_inf=1600"]),
+    ("sphere_dirichlet.toml", ["particles.n_inf=3200", "run.t_end=15", PAPERS]),
+    ("box_mixed.toml", ["particles.n_inf=1600", "run.t_end=60", PAPERS]),
+    ("pipe_neumann.toml", ["particles.n_inf=4000", PAPERS]),
+    ("sphere_injection.toml", ["particles.n_inf=1600", PAPERS]),
 ]
 
 

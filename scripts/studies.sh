@@ -89,14 +89,15 @@ diffusivity() {
     --set run.t_end=$t_end --set run.dt_factor=0.25 --vary treatment.no_flux=barrier,images \
     --vary particles.beta_factor=$betas --vary particles.fill_arrangement=lattice,random
   # A uniform state must stay uniform next to the walls: random fills of a
-  # closed square relaxed over 20 dr^2 / kappa, 16 seeds per treatment.
+  # closed square relaxed over 20 dr^2 / kappa, 16 seeds per treatment and width.
   local nu=4096 seeds="1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16"
   [[ $size == smoke ]] && { nu=256; seeds="1"; }
   local tu
   tu=$("$py" -c "print(20.0 / $nu)")
   sweep diffusivity/uniform_box "$ex/periodic_cosine.toml" --timeout 900 --set domain.type=box --set diagnostics.reference=none \
     --set particles.fill=uniform --set particles.fill_arrangement=random --set particles.n_inf=$nu \
-    --set run.t_end="$tu" --set run.dt_factor=0.25 --vary treatment.no_flux=barrier,images --vary run.seed=$seeds
+    --set run.t_end="$tu" --set run.dt_factor=0.25 --vary treatment.no_flux=barrier,images \
+    --vary particles.beta_factor=1,2 --vary run.seed=$seeds
 }
 
 convergence() {
@@ -157,11 +158,18 @@ boundaries() {
     "${best_keys[@]}" --set particles.beta_factor=1 --vary particles.n_inf=$sb
   # Widths with the best treatment: q = 1 (fixed beta dr^2), q < 1 (widths
   # shrinking more slowly than the spacing) and per-particle widths.
-  local wn="400,1600"
-  [[ $size == smoke ]] && wn="100"
+  local wn="400,1600" pn="400"
+  [[ $size == smoke ]] && { wn="100"; pn="100"; }
   sweep boundaries/sphere_widths "$ex/sphere_dirichlet.toml" --timeout 5400 --set run.t_end=$t_sphere \
-    "${best_keys[@]}" --vary particles.n_inf=$wn \
-    --vary particles.width_exponent:solver.width_mode=1:fixed,0.8:fixed,0.6:fixed,1:per_particle
+    "${best_keys[@]}" --vary particles.n_inf=$wn --vary particles.width_exponent=1,0.8,0.6
+  # Per-particle widths cost ~15x (n_inf = 1600 would take ~35 minutes): 400 only.
+  sweep boundaries/sphere_widths_pp "$ex/sphere_dirichlet.toml" --timeout 5400 --set run.t_end=$t_sphere \
+    "${best_keys[@]}" --set solver.width_mode=per_particle --vary particles.n_inf=$pn
+  # Seed-to-seed spread of the box's error at beta dr^2 = 1 (is its floor noise?).
+  local bs="800"
+  [[ $size == smoke ]] && bs="300"
+  sweep boundaries/box_best_beta1_seeds "$ex/box_mixed.toml" --timeout 5400 --set run.t_end=$t_box \
+    "${best_keys[@]}" --set particles.beta_factor=1 --set particles.n_inf=$bs --vary run.seed=2,3,4
 }
 
 case "$study" in

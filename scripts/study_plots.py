@@ -782,15 +782,19 @@ def boundaries(sweeps, docs):
         md.append(md_table(["n_inf", "mean abs err, beta dr^2 = 2", "mean abs err, beta dr^2 = 1",
                             "max abs err, 2", "max abs err, 1", "wall [s] (2)", "wall [s] (1)"], table))
         md.append(f"\nbeta dr^2 = 1: alpha = {a1:.2f} +- {s1:.2f}\n")
-    d = os.path.join(sweeps, "boundaries", "sphere_widths")
-    if os.path.exists(os.path.join(d, "runs.csv")):
-        rows = read_rows(os.path.join(d, "runs.csv"))
+    widths = []
+    for name in ("sphere_widths", "sphere_widths_pp"):
+        d = os.path.join(sweeps, "boundaries", name)
+        if os.path.exists(os.path.join(d, "runs.csv")):
+            widths += [(d, r) for r in read_rows(os.path.join(d, "runs.csv"))]
+    if widths:
         table = []
-        for r in sorted(rows, key=lambda r: (num(r, "particles.n_inf"), r["solver.width_mode"],
-                                              -num(r, "particles.width_exponent"))):
+        for d, r in sorted(widths, key=lambda dr: (num(dr[1], "n_inf"), dr[1].get("solver.width_mode", "fixed"),
+                                                    -num(dr[1], "particles.width_exponent", 1.0))):
             done = r["status"] == "completed"
             sm = summary(d, r) if done else None
-            table.append([r["particles.n_inf"], r["particles.width_exponent"], r["solver.width_mode"],
+            table.append([str(int(num(r, "n_inf"))), r.get("particles.width_exponent", "1"),
+                          r.get("solver.width_mode", "fixed"),
                           num(r, "ref_mean_abs_error") if done else status_label(r),
                           sm["reference"].get("mass_blob", {}).get("mean_abs_error", float("nan")) if sm else "-",
                           r["evaluations"] if done else "-", r["n_particles"] if done else "-",
@@ -832,6 +836,21 @@ def boundaries(sweeps, docs):
         md.append(md_table(["sweep", "n_inf", "mean abs err vs Crank(kappa)", "kappa_eff / kappa",
                             "residual vs Crank(kappa_eff)"], keff_rows))
         md.append("")
+    d = os.path.join(sweeps, "boundaries", "box_best_beta1_seeds")
+    if os.path.exists(os.path.join(d, "runs.csv")):
+        rows = [r for r in read_rows(os.path.join(d, "runs.csv")) if r["status"] == "completed"]
+        d1 = os.path.join(sweeps, "boundaries", "box_best_beta1")
+        base = [r for r in read_rows(os.path.join(d1, "runs.csv"))
+                if r["status"] == "completed" and num(r, "n_inf") == num(rows[0], "n_inf")] if rows and \
+            os.path.exists(os.path.join(d1, "runs.csv")) else []
+        errs = [num(r, "ref_mean_abs_error") for r in base + rows]
+        md.append("## Box, best treatment, beta dr^2 = 1: seed to seed\n")
+        md.append(md_table(["n_inf", "run.seed", "mean abs err M"],
+                           [[str(int(num(r, "n_inf"))), r.get("run.seed", "1"), num(r, "ref_mean_abs_error")]
+                            for r in base + rows]))
+        if len(errs) > 1:
+            md.append(f"\nmean {fmt(float(np.mean(errs)))}, standard deviation {fmt(float(np.std(errs, ddof=1)))} "
+                      f"over {len(errs)} seeds\n")
     md.append("## Fitted slopes (error ~ n^-alpha, least squares in log-log, +- one standard error)\n")
     md.append(md_table(["case", "treatment", "alpha", "std. error", "error at largest n", "largest n"],
                        [[c, v, a, sa, e, str(n)] for c, v, a, sa, e, n in fits]))
