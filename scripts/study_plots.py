@@ -778,6 +778,9 @@ def boundaries(sweeps, docs):
             ns.append(num(r, "particles.n_inf"))
             e1.append(num(r, "ref_mean_abs_error"))
         _, a1, s1 = fit_slope(ns, e1)
+        ax = axes[0 if case == "sphere" else 1]
+        ax.loglog(ns, e1, "^", color="tab:green", label=f"best, beta dr^2 = 1: n^-({a1:.2f} +- {s1:.2f})")
+        ax.legend(fontsize=8)
         md.append(f"## {case.capitalize()}, best treatment: beta dr^2 = 2 against 1\n")
         md.append(md_table(["n_inf", "mean abs err, beta dr^2 = 2", "mean abs err, beta dr^2 = 1",
                             "max abs err, 2", "max abs err, 1", "wall [s] (2)", "wall [s] (1)"], table))
