@@ -166,10 +166,10 @@ boundaries() {
   sweep boundaries/sphere_widths_pp "$ex/sphere_dirichlet.toml" --timeout 5400 --set run.t_end=$t_sphere \
     "${best_keys[@]}" --set solver.width_mode=per_particle --vary particles.n_inf=$pn
   # Seed-to-seed spread of the box's error at beta dr^2 = 1 (is its floor noise?).
-  local bs="800"
-  [[ $size == smoke ]] && bs="300"
+  local bs="800" seeds_box="2,3,4"
+  [[ $size == smoke ]] && { bs="300"; seeds_box="2"; }
   sweep boundaries/box_best_beta1_seeds "$ex/box_mixed.toml" --timeout 5400 --set run.t_end=$t_box \
-    "${best_keys[@]}" --set particles.beta_factor=1 --set particles.n_inf=$bs --vary run.seed=2,3,4
+    "${best_keys[@]}" --set particles.beta_factor=1 --set particles.n_inf=$bs --vary run.seed=$seeds_box
 }
 
 case "$study" in
