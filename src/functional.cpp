@@ -31,14 +31,16 @@ TransportTerm::TransportTerm(double dt, double c_w) : dt_(dt), c_w_(c_w) {
 }
 
 double TransportTerm::evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m,
-                               const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref, Gradient* grad) const {
+                               const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref, Gradient* grad,
+                               const std::vector<double>& weights) const {
   const std::size_t n = x.size();
   const bool widths = grad && grad->s.size() == n;
+  const bool weighted = !weights.empty();
   double sum = 0.0;
   for (std::size_t p = 0; p < n; ++p) {
     const Vec3 dx = x[p] - x_ref[p];
     const double ds = s[p] - s_ref[p];
-    const double w = m[p] / dt_;
+    const double w = (weighted ? weights[p] * m[p] : m[p]) / dt_;
     sum += 0.5 * w * (dx.squaredNorm() + c_w_ * ds * ds);
     if (grad) {
       grad->x[p] = w * dx;
@@ -249,12 +251,17 @@ void Functional::set_dt(double dt) {
 }
 
 void Functional::set_reference(const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref,
-                               const std::vector<double>& m) {
+                               const std::vector<double>& m, std::vector<double> transport_weights) {
   require(x_ref.size() == s_ref.size() && x_ref.size() == m.size(), "reference sizes",
           static_cast<double>(x_ref.size()), "x, s and m must have the same length");
+  require(transport_weights.empty() || transport_weights.size() == m.size(), "transport_weights size",
+          static_cast<double>(transport_weights.size()), "must be 0 or the number of particles");
+  for (double a : transport_weights)
+    require(std::isfinite(a) && a > 0.0, "transport weight", a, "must be finite and > 0");
   x_ref_ = x_ref;
   s_ref_ = s_ref;
   m_ = m;
+  weights_ = std::move(transport_weights);
 }
 
 namespace {
@@ -354,7 +361,7 @@ FunctionalParts Functional::evaluate_impl(const std::vector<Vec3>& x, const std:
     grad->resize(n, widths);
     scratch_.resize(n_ext, widths);
   }
-  parts.transport = transport_.evaluate(x, s, m_, x_ref_, s_ref_, grad);
+  parts.transport = transport_.evaluate(x, s, m_, x_ref_, s_ref_, grad, weights_);
   Gradient* g = grad ? &scratch_ : nullptr;
   if (!images)
     parts.entropy = all_pairs ? entropy_.evaluate_all_pairs(x, s, m_, per_, g) : entropy_.evaluate(x, s, m_, list_, g);

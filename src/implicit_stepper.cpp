@@ -1,10 +1,30 @@
 #include <chrono>
 #include <cmath>
+#include <algorithm>
 #include <limits>
 
 #include "otfp/stepper.hpp"
 
 namespace otfp {
+
+std::string to_string(TimeScheme s) { return s == TimeScheme::Euler ? "euler" : "bdf2"; }
+
+TimeScheme time_scheme_from_string(const std::string& s) {
+  if (s == "euler") return TimeScheme::Euler;
+  if (s == "bdf2") return TimeScheme::Bdf2;
+  throw InvalidArgument("time_scheme = '" + s + "': must be one of euler, bdf2");
+}
+
+std::string to_string(Predictor p) {
+  return p == Predictor::None ? "none" : p == Predictor::Extrapolate ? "extrapolate" : "damped";
+}
+
+Predictor predictor_from_string(const std::string& s) {
+  if (s == "none") return Predictor::None;
+  if (s == "extrapolate") return Predictor::Extrapolate;
+  if (s == "damped") return Predictor::Damped;
+  throw InvalidArgument("predictor = '" + s + "': must be one of none, extrapolate, damped");
+}
 
 std::string to_string(WidthMode m) { return m == WidthMode::Fixed ? "fixed" : "per_particle"; }
 
@@ -40,30 +60,32 @@ FunctionalOptions functional_options(const ImplicitOptions& o) {
   return f;
 }
 
-// The objective in scaled unknowns: z_x = sqrt(m/dt) x makes the transport
-// Hessian the identity; widths are z_s = a_p log(s/s^k) with a_p = s^k sqrt(c_w m/dt),
+// The objective in scaled unknowns: z_x = sqrt(a m/dt) x makes the transport
+// Hessian the identity (a: the transport weight, 1 for Euler, (1+2w)/(1+w)
+// for BDF2); widths are z_s = b_p log(s/s^k) with b_p = s^k sqrt(c_w a m/dt),
 // which keeps s > 0 without bounds (NLopt's bounds slow L-BFGS down, Ceres has
-// none) and has unit curvature at s = s^k.
+// none) and has unit curvature at s = s^k. s_anchor = s^k, the widths at the
+// start of the step (for BDF2 the functional's reference is s_hat instead).
 class StepObjective final : public Objective {
  public:
-  StepObjective(Functional& f, const ExternalPotential& ext, const std::vector<Vec3>& x_ref,
-                const std::vector<double>& s_ref, const std::vector<double>& m, double dt, bool widths)
-      : f_(f), ext_(ext), s_ref_(s_ref), m_(m), dim_(f.dim()), widths_(widths), n_(x_ref.size()) {
+  StepObjective(Functional& f, const ExternalPotential& ext, const std::vector<Vec3>& x_anchor,
+                const std::vector<double>& s_anchor, const std::vector<double>& m, double dt, bool widths,
+                const std::vector<double>& weights)
+      : f_(f), ext_(ext), s_ref_(s_anchor), m_(m), dim_(f.dim()), widths_(widths), n_(x_anchor.size()) {
     const double c_w = f.transport().c_w();
     scale_x_.resize(n_);
     scale_s_.resize(widths ? n_ : 0);
-    for (std::size_t p = 0; p < n_; ++p) {
-      scale_x_[p] = std::sqrt(m[p] / dt);
-      if (widths) scale_s_[p] = s_ref[p] * std::sqrt(c_w * m[p] / dt);
-    }
-    x_ = x_ref;
-    s_ = s_ref;
     disp_x_.resize(n_);
     disp_s_.resize(widths ? n_ : 0);
     for (std::size_t p = 0; p < n_; ++p) {
-      disp_x_[p] = dt / m[p];
-      if (widths) disp_s_[p] = dt / (c_w * m[p]);
+      const double am = weights.empty() ? m[p] : weights[p] * m[p];
+      scale_x_[p] = std::sqrt(am / dt);
+      if (widths) scale_s_[p] = s_anchor[p] * std::sqrt(c_w * am / dt);
+      disp_x_[p] = dt / am;
+      if (widths) disp_s_[p] = dt / (c_w * am);
     }
+    x_ = x_anchor;
+    s_ = s_anchor;
   }
 
   std::size_t num_variables() const override { return n_ * (dim_ + (widths_ ? 1 : 0)); }
@@ -146,17 +168,99 @@ ImplicitStepper::ImplicitStepper(int dim, ImplicitOptions options, Barrier barri
       options_((options.validate(), options)),
       functional_(dim, functional_options(options), std::move(barrier), periodicity) {}
 
-bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const std::vector<double>& m, double dt,
-                            StepSummary& summary) {
+void ImplicitStepper::reset_history() {
+  history_.clear();
+  dt1_ = dt2_ = 0.0;
+}
+
+// The predictor's start for one particle: the extrapolation `to`, or the
+// largest of 1/2, 1/4, 1/8 of the way from `from` that is no further outside
+// the barrier domain and the mirrored walls than `from` is; else `from`.
+Vec3 ImplicitStepper::admissible_start(const Vec3& from, const Vec3& to) const {
+  const Barrier& barrier = functional_.barrier().barrier();
+  const auto& walls = functional_.images().walls();
+  const bool use_barrier = barrier.active();
+  if (!use_barrier && walls.empty()) return to;
+  auto admissible = [&](const Vec3& y) {
+    if (use_barrier && barrier.distance(y) > std::max(0.0, barrier.distance(from))) return false;
+    for (const auto& w : walls)
+      if (w->distance(y) > std::max(0.0, w->distance(from))) return false;
+    return true;
+  };
+  double f = 1.0;
+  for (int k = 0; k < 4; ++k, f *= 0.5) {
+    const Vec3 y = from + f * (to - from);
+    if (admissible(y)) return y;
+  }
+  return from;
+}
+
+// Linear extrapolation moves a particle by w d1. A mode that decays within
+// a step (lambda dt >= 1, the large steps) moves less each step, and linear
+// extrapolation overshoots it; Damped scales by the particle's last ratio
+// d1.d2 / |d2|^2 (clamped to [0, 1]; linear while only d1 is known).
+double ImplicitStepper::predictor_factor(Predictor predictor, const History& h, double omega) {
+  if (predictor == Predictor::None || h.count < 1) return 0.0;
+  if (predictor == Predictor::Extrapolate || h.count < 2) return omega;
+  const double d22 = h.d2.squaredNorm() + h.ds2 * h.ds2;
+  if (!(d22 > 0.0)) return 0.0;
+  return omega * std::min(std::max((h.d1.dot(h.d2) + h.ds1 * h.ds2) / d22, 0.0), 1.0);
+}
+
+std::vector<Vec3> ImplicitStepper::predict(const ParticleSet& particles, double dt) const {
+  require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
+  std::vector<Vec3> out = particles.positions();
+  if (!(dt1_ > 0.0)) return out;
+  const double omega = dt / dt1_;
+  const Predictor kind = options_.predictor == Predictor::None ? Predictor::Extrapolate : options_.predictor;
+  for (std::size_t p = 0; p < out.size(); ++p) {
+    const auto it = history_.find(particles.ids()[p]);
+    if (it == history_.end()) continue;
+    const double g = predictor_factor(kind, it->second, omega);
+    if (g > 0.0) out[p] = admissible_start(out[p], out[p] + g * it->second.d1);
+  }
+  return out;
+}
+
+bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const std::vector<double>& m,
+                            std::vector<History>& hist, double& dt1, double& dt2, double dt, StepSummary& summary) {
+  const std::size_t n = x.size();
+  const bool widths = options_.width_mode == WidthMode::PerParticle;
+  const double omega = dt1 > 0.0 ? dt / dt1 : 0.0;  // dt_k / dt_{k-1}
+
+  // Variational BDF2 (docs/stepper.md): the variable-step BDF2 update
+  //   a0 x^{k+1} - (1+w) x^k + w^2/(1+w) x^{k-1} = -dt/m dE/dx(x^{k+1}),
+  //   a0 = (1+2w)/(1+w), w = dt_k/dt_{k-1},
+  // is the stationarity condition of  a0 m/(2 dt) |x - x_hat|^2 + E(x)  with
+  //   x_hat = x^k + w^2/(1+2w) (x^k - x^{k-1}),
+  // i.e. (28) with the reference x_hat and transport weight a0 (w = 1: 3/(4 dt),
+  // x_hat = (4 x^k - x^{k-1})/3). Particles with no x^{k-1} take the Euler form.
+  std::vector<Vec3> x_ref = x;
+  std::vector<double> s_ref = s, weights;
+  long bdf2_particles = 0;
+  if (options_.time_scheme == TimeScheme::Bdf2 && dt1 > 0.0) {
+    const double c = omega * omega / (1.0 + 2.0 * omega);
+    const double a0 = (1.0 + 2.0 * omega) / (1.0 + omega);
+    weights.assign(n, 1.0);
+    for (std::size_t p = 0; p < n; ++p) {
+      if (hist[p].count < 1) continue;
+      x_ref[p] = x[p] + c * hist[p].d1;
+      if (widths) s_ref[p] = s[p] + c * hist[p].ds1;
+      weights[p] = a0;
+      ++bdf2_particles;
+    }
+    if (bdf2_particles == 0) weights.clear();
+  }
+  summary.bdf2_particles = bdf2_particles;
+
   functional_.set_dt(dt);
-  functional_.set_reference(x, s, m);
+  functional_.set_reference(x_ref, s_ref, m, weights);
   const int builds_before = functional_.list().build_count();
   const double list_seconds_before = functional_.list().build_seconds();
   const std::uint64_t pairs_before = functional_.entropy().pair_evaluations();
   functional_.rebuild_list(x, s);  // particles may have been added or removed
 
-  const bool widths = options_.width_mode == WidthMode::PerParticle;
-  StepObjective objective(functional_, external_, x, s, m, dt, widths);
+  StepObjective objective(functional_, external_, x, s, m, dt, widths, weights);
   std::vector<double> z(objective.num_variables());
   objective.pack(x, s, z.data());
 
@@ -165,9 +269,18 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   MinimizerOptions mo = options_.minimizer;
   mo.gradient_tolerance = options_.displacement_tolerance * s_min;
 
+  // The anchor x^k: F there is the right-hand side of the energy inequality
+  // the step must satisfy (Euler: E(x^k); BDF2: the modified energy, below).
+  // The papers' path (Euler, no predictor) starts there and lets the
+  // minimiser apply the relative rule; otherwise the rule is measured at the
+  // anchor, so that a good start does not make the tolerance stricter.
+  const bool papers_path = options_.time_scheme == TimeScheme::Euler && options_.predictor == Predictor::None;
+  std::vector<double> g_anchor(papers_path ? 0 : z.size());
   double f0 = 0.0;
-  const bool start_ok = objective.evaluate(z.data(), &f0, nullptr);
+  const bool start_ok = objective.evaluate(z.data(), &f0, papers_path ? nullptr : g_anchor.data());
   const FunctionalParts before = objective.parts();
+  if (!papers_path) ++summary.evaluations;
+  double f_start = f0;
 
   // A line search stalls once the decrease it must see is below the round-off
   // of F. With unit curvature in the scaled unknowns that happens at
@@ -182,12 +295,49 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
       std::abs(before.transport) + std::abs(before.entropy) + std::abs(before.barrier) + options_.kappa * mass;
   const double eps_f = 64.0 * std::numeric_limits<double>::epsilon() * f_scale;
   const double floor_measure = std::sqrt(eps_f * dt / m_min);
-  // Relative rule (applied by the minimiser at its start point): the first
-  // gradient step is the explicit displacement of the step; at small dt the
-  // absolute rule alone stops before the solution has moved by much more
-  // than the tolerance (under-diffusion, docs/validation.md study 3).
-  mo.relative_gradient_tolerance = options_.relative_tolerance;
+  // Relative rule: the first gradient step is the explicit displacement of
+  // the step; at small dt the absolute rule alone stops before the solution
+  // has moved by much more than the tolerance (under-diffusion,
+  // docs/validation.md study 3).
+  if (papers_path) {
+    mo.relative_gradient_tolerance = options_.relative_tolerance;
+  } else {
+    const double measure0 = start_ok ? objective.stopping_measure(z.data(), g_anchor.data()) : 0.0;
+    if (options_.relative_tolerance > 0.0 && measure0 > 0.0)
+      mo.gradient_tolerance =
+          std::max(std::min(mo.gradient_tolerance, options_.relative_tolerance * measure0), floor_measure);
+    mo.relative_gradient_tolerance = 0.0;
+  }
   mo.gradient_tolerance_floor = floor_measure;
+
+  // Predictor: start from the extrapolated trajectory where that lowers F.
+  long predicted = 0;
+  if (start_ok && options_.predictor != Predictor::None && dt1 > 0.0) {
+    std::vector<Vec3> xp = x;
+    std::vector<double> sp = s;
+    for (std::size_t p = 0; p < n; ++p) {
+      // Particles inserted since the last step (no history) start where they are.
+      const double g = predictor_factor(options_.predictor, hist[p], omega);
+      if (!(g > 0.0)) continue;
+      xp[p] = admissible_start(x[p], x[p] + g * hist[p].d1);
+      if (widths) sp[p] = std::max(s[p] + g * hist[p].ds1, 0.5 * s[p]);
+      ++predicted;
+    }
+    if (predicted > 0) {
+      std::vector<double> zp(z.size());
+      objective.pack(xp, sp, zp.data());
+      double fp = 0.0;
+      ++summary.evaluations;
+      if (objective.evaluate(zp.data(), &fp, nullptr) && fp < f0) {
+        z = std::move(zp);
+        f_start = fp;
+      } else {
+        predicted = 0;
+      }
+    }
+  }
+  summary.predicted_particles = predicted;
+  summary.f_start = f_start;
 
   MinimizerSummary ms;
   if (start_ok) ms = minimize(objective, z, mo);
@@ -214,7 +364,9 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
     ok = objective.evaluate(z.data(), &f1, nullptr);
     summary.parts_after = objective.parts();
     summary.f_after = f1;
-    // Energy-dissipation inequality: E(x_{k+1}) + W^2/(2 dt) <= E(x_k) (+ round-off).
+    // Energy inequality F(x^{k+1}) <= F(x^k) (+ round-off). Euler: F(x^k) = E(x^k),
+    // so E(x^{k+1}) + W^2/(2 dt) <= E(x^k). BDF2 (d_k = x^k - x^{k-1}, c = w^2/(1+2w)):
+    // E(x^{k+1}) + a0 m/(2 dt) |d_{k+1} - c d_k|^2 <= E(x^k) + a0 m/(2 dt) c^2 |d_k|^2.
     const double slack =
         options_.energy_tolerance * (std::abs(f0) + std::abs(before.entropy) + std::abs(before.barrier) + 1e-300);
     if (ok && f1 > f0 + slack) {
@@ -228,15 +380,72 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   summary.list_builds += functional_.list().build_count() - builds_before;
   summary.list_seconds += functional_.list().build_seconds() - list_seconds_before;
   summary.pair_evaluations += functional_.entropy().pair_evaluations() - pairs_before;
-  if (ok) {
-    x = std::move(x_new);
-    s = std::move(s_new);
+  if (!ok) return false;
+
+  // Local error estimate: the error committed in this step, i.e. the distance
+  // from x^{k+1} to the exact solution through x^k, from the difference to the
+  // explicit extrapolation of the scheme's order (Milne's device). The
+  // history x^{k-1}, x^{k-2} is numerical, and its own errors enter at the
+  // same order (docs/stepper.md derives the factors):
+  //   Euler (p1 linear through x^{k-1}, x^k):       e = (x^{k+1} - p1) / 2, for any w;
+  //   BDF2  (p2 quadratic through x^{k-2}..x^k):    e = (1+w) h^2 / (w (h+h1)(h+h1+h2)) (x^{k+1} - p2)
+  // (h = dt, h1 = dt_{k-1}, h2 = dt_{k-2}; 1/3 at constant steps). Checked
+  // against the exact one-step error of x' = -lambda x (test_stepper.cpp).
+  const bool bdf2 = options_.time_scheme == TimeScheme::Bdf2;
+  const int need = bdf2 ? 2 : 1;
+  const double h = dt, h1 = dt1, h2 = dt2;
+  double factor = 0.0;
+  if (!bdf2 && h1 > 0.0)
+    factor = 0.5;
+  else if (bdf2 && h1 > 0.0 && h2 > 0.0)
+    factor = (1.0 + omega) * h * h / (omega * (h + h1) * (h + h1 + h2));
+  double sum_e2 = 0.0, sum_m = 0.0;
+  for (std::size_t p = 0; p < n && factor > 0.0; ++p) {
+    const History& H = hist[p];
+    if (H.count < need) continue;
+    Vec3 pred_x;
+    double pred_s;
+    if (!bdf2) {
+      pred_x = x[p] + omega * H.d1;
+      pred_s = s[p] + omega * H.ds1;
+    } else {
+      // Newton form: p(t) = x^k + v1 (t - t_k) + a (t - t_k)(t - t_{k-1}).
+      const Vec3 v1 = H.d1 / h1, v2 = H.d2 / h2;
+      const Vec3 acc = (v1 - v2) / (h1 + h2);
+      pred_x = x[p] + h * v1 + h * (h + h1) * acc;
+      const double w1 = H.ds1 / h1, w2 = H.ds2 / h2;
+      pred_s = s[p] + h * w1 + h * (h + h1) * (w1 - w2) / (h1 + h2);
+    }
+    const double ex = factor * (x_new[p] - pred_x).norm() / s[p];
+    const double es = widths ? factor * (s_new[p] - pred_s) / s[p] : 0.0;
+    sum_e2 += m[p] * (ex * ex + es * es);
+    sum_m += m[p];
   }
-  return ok;
+  if (sum_m > 0.0) {
+    const double err = std::sqrt(sum_e2 / sum_m);
+    if (!(summary.error_estimate >= err)) summary.error_estimate = err;  // NaN-aware max over substeps
+    summary.error_order = bdf2 ? 2 : 1;
+  }
+
+  // Shift the history: the new diffusive displacement (unwrapped).
+  for (std::size_t p = 0; p < n; ++p) {
+    History& H = hist[p];
+    H.d2 = H.d1;
+    H.ds2 = H.ds1;
+    H.d1 = x_new[p] - x[p];
+    H.ds1 = s_new[p] - s[p];
+    H.count = std::min(H.count + 1, 2);
+  }
+  dt2 = dt1;
+  dt1 = dt;
+  x = std::move(x_new);
+  s = std::move(s_new);
+  return true;
 }
 
-StepSummary ImplicitStepper::step(ParticleSet& particles, double dt) {
+StepSummary ImplicitStepper::step(ParticleSet& particles, double dt, double max_error) {
   require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
+  require(!(max_error <= 0.0), "max_error", max_error, "must be > 0 (infinity: no error control)");
   const auto t0 = std::chrono::steady_clock::now();
   StepSummary summary;
   summary.dt = dt;
@@ -251,37 +460,58 @@ StepSummary ImplicitStepper::step(ParticleSet& particles, double dt) {
   }
   std::vector<Vec3> x0(order.size());
   std::vector<double> s0(order.size()), m(order.size());
+  std::vector<History> hist0(order.size());
   for (std::size_t i = 0; i < order.size(); ++i) {
     x0[i] = particles.positions()[order[i]];
     s0[i] = particles.widths()[order[i]];
     m[i] = particles.masses()[order[i]];
+    const auto it = history_.find(particles.ids()[order[i]]);
+    if (it != history_.end()) hist0[i] = it->second;
   }
   for (int halvings = 0; halvings <= options_.max_halvings; ++halvings) {
     std::vector<Vec3> x = x0;
     std::vector<double> s = s0;
+    std::vector<History> hist = hist0;
+    double dt1 = dt1_, dt2 = dt2_;
     const int substeps = 1 << halvings;
     const double h = dt / substeps;
     bool ok = true;
     FunctionalParts first_before;
-    double first_f = 0.0;
+    double first_f = 0.0, first_start = 0.0;
+    summary.error_estimate = std::numeric_limits<double>::quiet_NaN();
+    summary.error_order = 0;
     for (int k = 0; k < substeps && ok; ++k) {
-      ok = solve(x, s, m, h, summary);
+      ok = solve(x, s, m, hist, dt1, dt2, h, summary);
       if (k == 0) {
         first_before = summary.parts_before;
         first_f = summary.f_before;
+        first_start = summary.f_start;
       }
     }
     if (ok) {
-      summary.accepted = true;
       summary.halvings = halvings;
       summary.substeps = substeps;
       summary.parts_before = first_before;
       summary.f_before = first_f;
+      summary.f_start = first_start;
+      if (summary.error_estimate > max_error) {
+        // Too inaccurate for the caller: nothing is committed, not even the history.
+        summary.error_rejected = true;
+        summary.message = "local error estimate " + std::to_string(summary.error_estimate) + " > limit " +
+                          std::to_string(max_error);
+        break;
+      }
+      summary.accepted = true;
       const Periodicity& per = functional_.periodicity();
       for (auto& p : x) p = per.wrap(p);
       particles.reorder(order);
       particles.positions() = std::move(x);
       particles.widths() = std::move(s);
+      history_.clear();
+      history_.reserve(hist.size());
+      for (std::size_t i = 0; i < hist.size(); ++i) history_.emplace(particles.ids()[i], hist[i]);
+      dt1_ = dt1;
+      dt2_ = dt2;
       break;
     }
     ++summary.rejected_solves;

@@ -45,9 +45,12 @@ struct FunctionalParts {
 class TransportTerm {
  public:
   TransportTerm(double dt, double c_w);
-  // x_ref, s_ref: the configuration at t_k. grad may be null.
+  // x_ref, s_ref: the configuration at t_k. grad may be null. weights: a
+  // factor a_p per particle (m_p -> a_p m_p; empty: all 1), used by the
+  // variational BDF2 step (docs/stepper.md).
   double evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m,
-                  const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref, Gradient* grad) const;
+                  const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref, Gradient* grad,
+                  const std::vector<double>& weights = {}) const;
   double dt() const { return dt_; }
   double c_w() const { return c_w_; }
 
@@ -115,8 +118,11 @@ class Functional {
  public:
   Functional(int dim, FunctionalOptions options, Barrier barrier = {}, Periodicity periodicity = {});
 
-  // Sets the reference configuration (x^k, s^k) and the masses.
-  void set_reference(const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref, const std::vector<double>& m);
+  // Sets the reference configuration (x^k, s^k) and the masses, and
+  // optionally a transport weight a_p per particle: T = sum_p a_p m_p/(2 dt) |..|^2
+  // (empty: a_p = 1, the implicit Euler step (28)).
+  void set_reference(const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref, const std::vector<double>& m,
+                     std::vector<double> transport_weights = {});
   // Value of F at (x, s) and, if grad != nullptr, its gradient. Rebuilds the
   // neighbour list when needed (counted in list().build_count()).
   FunctionalParts evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad);
@@ -153,7 +159,7 @@ class Functional {
   Periodicity per_;
   NeighborList list_;
   std::vector<Vec3> x_ref_;
-  std::vector<double> s_ref_, m_;
+  std::vector<double> s_ref_, m_, weights_;
   Gradient scratch_;
   // Image blobs: the extended arrays (particles first, then images) and the
   // number of particles the list was built for.

@@ -3,7 +3,9 @@
 // step (minimise (28) with Ceres or NLopt) and the explicit baselines of
 // Algorithm 1 (sign corrected, METHOD-NOTES 2.1).
 #include <functional>
+#include <limits>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "otfp/functional.hpp"
@@ -17,6 +19,23 @@ enum class WidthMode {
 };
 std::string to_string(WidthMode m);
 WidthMode width_mode_from_string(const std::string& s);  // "fixed" | "per_particle"
+
+// Time discretisation of the implicit step (docs/stepper.md).
+enum class TimeScheme {
+  Euler,  // implicit Euler: minimise (28) from x^k (the papers' scheme, first order)
+  Bdf2    // variational BDF2: the same functional about x_hat = x^k + c (x^k - x^{k-1}), second order
+};
+std::string to_string(TimeScheme s);
+TimeScheme time_scheme_from_string(const std::string& s);  // "euler" | "bdf2"
+
+// Starting point of each solve.
+enum class Predictor {
+  None,        // x^k (the warm start of the papers)
+  Extrapolate,  // x^k + (dt_k / dt_{k-1}) (x^k - x^{k-1}), kept inside the walls
+  Damped        // the same times each particle's observed ratio of successive displacements, in [0, 1]
+};
+std::string to_string(Predictor p);
+Predictor predictor_from_string(const std::string& s);  // "none" | "extrapolate" | "damped"
 
 // Optional external potential per unit mass (the Psi of (15)); returns its
 // value at x and, if grad is not null, its gradient. Added to the barrier.
@@ -43,6 +62,16 @@ struct StepSummary {
   double list_seconds = 0.0;                // time in neighbour-list builds
   std::uint64_t pair_evaluations = 0;
   long inserted = 0, removed = 0;           // particles, filled by source/projection steps
+  // Local time-error estimate (implicit stepper): mass-weighted RMS over the
+  // particles with enough history of |e_p| / s_p, e_p the Milne estimate of
+  // the step's local error (order 1: Euler, 2: BDF2); NaN when no particle has
+  // the history it needs (first steps, docs/stepper.md). Largest over substeps.
+  double error_estimate = std::numeric_limits<double>::quiet_NaN();
+  int error_order = 0;                      // order of the scheme the estimate belongs to
+  bool error_rejected = false;              // rejected because error_estimate > the caller's limit
+  long bdf2_particles = 0;                  // particles stepped with the BDF2 form (last substep)
+  long predicted_particles = 0;             // particles started from the extrapolation (last substep)
+  double f_start = 0.0;                     // F at the solver's start point (== f_before without a predictor)
 };
 
 struct ImplicitOptions {
@@ -57,6 +86,8 @@ struct ImplicitOptions {
   int max_halvings = 4;                              // retries with dt/2 substeps after a failed solve
   double energy_tolerance = 1e-9;                    // allowed F_after - F_before, relative to |F_before| + |E|
   bool sort_particles = true;                        // reorder particles spatially at each accepted step (ids kept)
+  TimeScheme time_scheme = TimeScheme::Euler;        // implicit Euler or variational BDF2
+  Predictor predictor = Predictor::None;             // start of each solve
   void validate() const;
 };
 
@@ -66,19 +97,46 @@ class ImplicitStepper {
   // One implicit step of length dt from the state in `particles`. On failure
   // (after max_halvings retries) the particles are left exactly as they were.
   // On success they may also be reordered (sort_particles); ids are kept.
-  StepSummary step(ParticleSet& particles, double dt);
+  // max_error: a step whose error_estimate exceeds it is not taken
+  // (accepted == false, error_rejected == true; the history is kept), so an
+  // adaptive caller (TimeStepController) can retry with a smaller dt.
+  StepSummary step(ParticleSet& particles, double dt,
+                   double max_error = std::numeric_limits<double>::infinity());
+  // The stepper remembers each particle's last two diffusive displacements
+  // (by id) for the predictor, BDF2 and the error estimate. Call this when the
+  // particles were changed in a way that is not a time step (a new set, a restart).
+  void reset_history();
+  std::size_t history_size() const { return history_.size(); }
+  // Where the predictor (options().predictor, or Extrapolate if None) would
+  // start a step of length dt, in the order of `particles`: e.g.
+  // x + (dt / dt_{k-1}) (x^k - x^{k-1}), pulled back towards x where that would
+  // leave the barrier domain or cross a mirrored wall; x itself for particles
+  // with no history.
+  std::vector<Vec3> predict(const ParticleSet& particles, double dt) const;
+  double previous_dt() const { return dt1_; }
   void set_external_potential(ExternalPotential u) { external_ = std::move(u); }
   const ImplicitOptions& options() const { return options_; }
   Functional& functional() { return functional_; }
   Barrier& barrier() { return functional_.barrier().barrier(); }
 
  private:
-  bool solve(std::vector<Vec3>& x, std::vector<double>& s, const std::vector<double>& m, double dt,
-             StepSummary& summary);
+  // Per-particle history, aligned with the particles during a step.
+  struct History {
+    Vec3 d1 = Vec3::Zero(), d2 = Vec3::Zero();  // x^k - x^{k-1}, x^{k-1} - x^{k-2} (diffusive part)
+    double ds1 = 0.0, ds2 = 0.0;                // the same for widths
+    int count = 0;                              // how many of d1, d2 are known
+  };
+  bool solve(std::vector<Vec3>& x, std::vector<double>& s, const std::vector<double>& m, std::vector<History>& hist,
+             double& dt1, double& dt2, double dt, StepSummary& summary);
+  Vec3 admissible_start(const Vec3& from, const Vec3& to) const;
+  // Factor g of the predicted displacement g d1 for a step w = dt / dt_{k-1} times the last.
+  static double predictor_factor(Predictor predictor, const History& h, double omega);
   int dim_;
   ImplicitOptions options_;
   Functional functional_;
   ExternalPotential external_;
+  std::unordered_map<ParticleId, History> history_;
+  double dt1_ = 0.0, dt2_ = 0.0;  // the last two step sizes (0: none)
 };
 
 enum class ExplicitScheme {
