@@ -168,6 +168,59 @@ TEST(FunctionalTerms, EachTermGradientMatchesFiniteDifferences) {
   }
 }
 
+// The BDF2 form: T = sum_p a_p m_p/(2 dt)(|x - x_ref|^2 + c_w (s - s_ref)^2),
+// its value against the sum written out, its gradient against differences.
+TEST(FunctionalTerms, WeightedTransportMatchesItsSumAndFiniteDifferences) {
+  const int dim = 2;
+  ParticleSet ps = random_cloud(dim, 12, -1.0, 1.0, 0.2, 0.3, 0.05, 4);
+  const auto& x = ps.positions();
+  const auto& s = ps.widths();
+  const auto& m = ps.masses();
+  std::vector<Vec3> xr = x;
+  std::vector<double> sr = s, a(x.size());
+  for (std::size_t p = 0; p < x.size(); ++p) {
+    xr[p] += Vec3(0.01 * p, -0.02, 0.0);
+    sr[p] *= 1.1;
+    a[p] = 1.0 + 0.25 * (p % 3);
+  }
+  const double dt = 0.03, c_w = 1.0;
+  TransportTerm T(dt, c_w);
+  Gradient g;
+  g.resize(x.size(), true);
+  double expect = 0.0;
+  for (std::size_t p = 0; p < x.size(); ++p)
+    expect += a[p] * m[p] / (2 * dt) * ((x[p] - xr[p]).squaredNorm() + c_w * (s[p] - sr[p]) * (s[p] - sr[p]));
+  EXPECT_NEAR(T.evaluate(x, s, m, xr, sr, &g, a), expect, 1e-13 * expect);
+  const double h = 1e-5;
+  for (std::size_t p = 0; p < x.size(); ++p) {
+    for (int k = 0; k < dim; ++k) {
+      const double fd = central_difference(
+          [&](double e) {
+            auto y = x;
+            y[p][k] += e;
+            return T.evaluate(y, s, m, xr, sr, nullptr, a);
+          },
+          h);
+      EXPECT_NEAR(g.x[p][k], fd, 1e-7 * (1 + std::abs(fd)));
+    }
+    const double fd = central_difference(
+        [&](double e) {
+          auto t = s;
+          t[p] += e;
+          return T.evaluate(x, t, m, xr, sr, nullptr, a);
+        },
+        h);
+    EXPECT_NEAR(g.s[p], fd, 1e-7 * (1 + std::abs(fd)));
+  }
+  // Through the functional: the weights reach the transport part only.
+  FunctionalOptions fo;
+  fo.dt = dt;
+  Functional F(dim, fo);
+  F.set_reference(xr, sr, m, a);
+  EXPECT_NEAR(F.evaluate_all_pairs(x, s, nullptr).transport, expect, 1e-13 * expect);
+  EXPECT_THROW(F.set_reference(xr, sr, m, std::vector<double>(3, 1.0)), InvalidArgument);
+}
+
 // Independent naive evaluation of (28) with std::exp and no neighbour list.
 double naive_functional(int dim, const ParticleSet& ps, const std::vector<Vec3>& x, const std::vector<double>& s,
                         double dt, double c_w, double kappa, double rho_ref, const Barrier& barrier) {
