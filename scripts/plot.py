@@ -39,7 +39,8 @@ def read_series(run_dir):
         rows = list(csv.DictReader(f))
     if not rows:
         sys.exit(f"plot.py: {run_dir}/series.csv has no rows")
-    return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
+    # Empty cells (error_estimate without an estimate) read as NaN.
+    return {k: np.array([float(r[k]) if r[k] != "" else np.nan for r in rows]) for k in rows[0]}
 
 
 def read_summary(run_dir):

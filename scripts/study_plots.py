@@ -55,7 +55,8 @@ def series(sweep_dir, row):
     rows = read_rows(path)
     if not rows:
         return None
-    return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
+    # Empty cells (error_estimate without an estimate) read as NaN.
+    return {k: np.array([float(r[k]) if r[k] != "" else np.nan for r in rows]) for k in rows[0]}
 
 
 def summary(sweep_dir, row):

@@ -37,6 +37,10 @@ const std::vector<KeySpec>& schema() {
       {"run.dt_factor", Kind::Float, {}},
       {"run.seed", Kind::Int, {}},
       {"run.max_steps", Kind::Int, {}},
+      {"run.dt_mode", Kind::String, {"fixed", "adaptive"}},
+      {"run.time_tolerance", Kind::Float, {}},
+      {"run.dt_min", Kind::Float, {}},
+      {"run.dt_max", Kind::Float, {}},
       {"run.vtk_interval", Kind::Int, {}},
       {"run.threads", Kind::Int, {}},
       {"domain.type", Kind::String, {"ball", "box", "cylinder", "periodic_box", "square_pipe_obstacle", "free"}},
@@ -85,6 +89,8 @@ const std::vector<KeySpec>& schema() {
       {"solver.explicit_scheme", Kind::String, {"euler27", "rk4", "euler_exact"}},
       {"solver.width_mode", Kind::String, {"fixed", "per_particle"}},
       {"solver.width_metric", Kind::String, {"as_printed", "exact"}},
+      {"solver.time_scheme", Kind::String, {"euler", "bdf2"}},
+      {"solver.predictor", Kind::String, {"none", "extrapolate", "damped"}},
       {"solver.displacement_tolerance", Kind::Float, {}},
       {"solver.relative_tolerance", Kind::Float, {}},
       {"solver.max_iterations", Kind::Int, {}},
@@ -468,6 +474,10 @@ Config to_config(const toml::table& root) {
     r.get("dt_factor", c.run.dt_factor);
     r.get("seed", c.run.seed);
     r.get("max_steps", c.run.max_steps);
+    r.get("dt_mode", c.run.dt_mode);
+    r.get("time_tolerance", c.run.time_tolerance);
+    r.get("dt_min", c.run.dt_min);
+    r.get("dt_max", c.run.dt_max);
     r.get("vtk_interval", c.run.vtk_interval);
     r.get("threads", c.run.threads);
   }
@@ -550,6 +560,8 @@ Config to_config(const toml::table& root) {
     r.get("explicit_scheme", s.explicit_scheme);
     r.get("width_mode", s.width_mode);
     r.get("width_metric", s.width_metric);
+    r.get("time_scheme", s.time_scheme);
+    r.get("predictor", s.predictor);
     r.get("displacement_tolerance", s.displacement_tolerance);
     r.get("relative_tolerance", s.relative_tolerance);
     r.get("max_iterations", s.max_iterations);
@@ -619,6 +631,14 @@ void validate(const Config& c) {
   positive(r.dt_factor, "run.dt_factor");
   at_least<std::int64_t>(r.seed, 0, "run.seed");
   at_least<std::int64_t>(r.max_steps, 0, "run.max_steps");
+  positive(r.time_tolerance, "run.time_tolerance");
+  if (r.dt_min) non_negative(*r.dt_min, "run.dt_min");
+  if (r.dt_max) positive(*r.dt_max, "run.dt_max");
+  if (r.dt_min && r.dt_max && *r.dt_max < *r.dt_min)
+    throw ConfigError("run.dt_max", shown(*r.dt_max), fmt::format("must be >= run.dt_min = {}", shown(*r.dt_min)));
+  if (r.dt_mode == "adaptive" && c.solver.stepper != "implicit")
+    throw ConfigError("run.dt_mode", quoted(r.dt_mode),
+                      "needs solver.stepper = \"implicit\" (the explicit schemes have no error estimate)");
   at_least<std::int64_t>(r.vtk_interval, 0, "run.vtk_interval");
   if (r.threads < 0 || r.threads > 4096)
     throw ConfigError("run.threads", std::to_string(r.threads), "must be in [0, 4096] (0: OpenMP default)");
@@ -728,6 +748,11 @@ void validate(const Config& c) {
                           (s.backend == "ceres" ? "lbfgs, bfgs, nonlinear_cg" : "lbfgs, tnewton, var2, mma") + ")");
   if (s.width_mode == "per_particle" && s.stepper != "implicit")
     throw ConfigError("solver.width_mode", quoted(s.width_mode), "needs solver.stepper = \"implicit\"");
+  if (s.time_scheme != "euler" && s.stepper != "implicit")
+    throw ConfigError("solver.time_scheme", quoted(s.time_scheme),
+                      "needs solver.stepper = \"implicit\" (explicit schemes: solver.explicit_scheme)");
+  if (s.predictor != "none" && s.stepper != "implicit")
+    throw ConfigError("solver.predictor", quoted(s.predictor), "needs solver.stepper = \"implicit\"");
   positive(s.displacement_tolerance, "solver.displacement_tolerance");
   if (!(s.relative_tolerance >= 0.0 && s.relative_tolerance <= 1.0))
     throw ConfigError("solver.relative_tolerance", shown(s.relative_tolerance), "must be in [0, 1] (0: absolute rule only)");
@@ -828,9 +853,13 @@ std::string to_toml(const Config& c) {
                   {"dt_factor", c.run.dt_factor},
                   {"seed", c.run.seed},
                   {"max_steps", c.run.max_steps},
+                  {"dt_mode", c.run.dt_mode},
+                  {"time_tolerance", c.run.time_tolerance},
                   {"vtk_interval", c.run.vtk_interval},
                   {"threads", c.run.threads}};
   if (c.run.dt) run.insert("dt", *c.run.dt);
+  if (c.run.dt_min) run.insert("dt_min", *c.run.dt_min);
+  if (c.run.dt_max) run.insert("dt_max", *c.run.dt_max);
   root.insert("run", std::move(run));
 
   const DomainSection& d = c.domain;
@@ -892,6 +921,8 @@ std::string to_toml(const Config& c) {
                   {"explicit_scheme", s.explicit_scheme},
                   {"width_mode", s.width_mode},
                   {"width_metric", s.width_metric},
+                  {"time_scheme", s.time_scheme},
+                  {"predictor", s.predictor},
                   {"displacement_tolerance", s.displacement_tolerance},
                   {"relative_tolerance", s.relative_tolerance},
                   {"max_iterations", s.max_iterations},

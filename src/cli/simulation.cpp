@@ -12,6 +12,7 @@
 #include <iostream>
 #include <limits>
 #include <numbers>
+#include <optional>
 
 #include "domain_setup.hpp"
 #include "otfp/analytic.hpp"
@@ -22,6 +23,7 @@
 #include "otfp/neighbor_list.hpp"
 #include "otfp/parameters.hpp"
 #include "otfp/stepper.hpp"
+#include "otfp/time_step_control.hpp"
 #include "otfp_app/writers.hpp"
 
 #ifndef OTFP_APP_VERSION
@@ -123,6 +125,8 @@ double invert_cosine_cdf(double u, double a, double k) {
   return xi;
 }
 
+constexpr double kNoErrorLimit = std::numeric_limits<double>::infinity();
+
 // Discrete decay factor per step of the mode exp(-lambda t) under the time
 // scheme alone (exact in space), as a rate: what the stepper would give
 // with an exact spatial operator.
@@ -131,6 +135,8 @@ double time_discrete_rate(const std::string& scheme, double lambda, double dt) {
   double g = 0.0;
   if (scheme == "implicit")
     g = 1.0 / (1.0 + z);
+  else if (scheme == "bdf2")  // principal root of (3/2 + z) g^2 - 2 g + 1/2 = 0 (constant steps)
+    g = (2.0 + std::sqrt(1.0 + 2.0 * z)) / (3.0 + 2.0 * z);
   else if (scheme == "rk4")
     g = 1.0 - z + z * z / 2.0 - z * z * z / 6.0 + z * z * z * z / 24.0;
   else
@@ -487,6 +493,8 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
       io.relative_tolerance = s.relative_tolerance;
       io.width_mode = width_mode_from_string(s.width_mode);
       io.width_metric = s.width_metric == "exact" ? WidthMetric::ExactGaussian : WidthMetric::AsPrinted;
+      io.time_scheme = time_scheme_from_string(s.time_scheme);
+      io.predictor = predictor_from_string(s.predictor);
       io.kappa = c.physics.kappa;
       io.rho_ref = c.physics.rho_ref;
       io.neighbor = nb;
@@ -514,9 +522,18 @@ nlohmann::json Simulation::describe() const {
   const Config& c = config_;
   const Derived& d = derived_;
   nlohmann::json cfg;
-  cfg["run"] = {{"dim", c.run.dim},           {"t_end", c.run.t_end},         {"dt", opt(c.run.dt)},
-                {"dt_factor", c.run.dt_factor}, {"seed", c.run.seed},         {"max_steps", c.run.max_steps},
-                {"vtk_interval", c.run.vtk_interval}, {"threads", c.run.threads}};
+  cfg["run"] = {{"dim", c.run.dim},
+                {"t_end", c.run.t_end},
+                {"dt", opt(c.run.dt)},
+                {"dt_factor", c.run.dt_factor},
+                {"seed", c.run.seed},
+                {"max_steps", c.run.max_steps},
+                {"dt_mode", c.run.dt_mode},
+                {"time_tolerance", c.run.time_tolerance},
+                {"dt_min", opt(c.run.dt_min)},
+                {"dt_max", opt(c.run.dt_max)},
+                {"vtk_interval", c.run.vtk_interval},
+                {"threads", c.run.threads}};
   nlohmann::json subs = nlohmann::json::array();
   for (const SubPatchSpec& sp : c.domain.subpatches)
     subs.push_back({{"name", sp.name},
@@ -568,6 +585,8 @@ nlohmann::json Simulation::describe() const {
                    {"explicit_scheme", s.explicit_scheme},
                    {"width_mode", s.width_mode},
                    {"width_metric", s.width_metric},
+                   {"time_scheme", s.time_scheme},
+                   {"predictor", s.predictor},
                    {"displacement_tolerance", s.displacement_tolerance},
                    {"relative_tolerance", s.relative_tolerance},
                    {"max_iterations", s.max_iterations},
@@ -687,7 +706,8 @@ RunResult Simulation::run(const RunOptions& options) {
   std::string header =
       "step,t,dt,n_particles,mass_total,mass_inside,polar_inertia,inserted,removed,energy,iterations,evaluations,"
       "mass_with_layer,polar_inertia_with_layer,polar_inertia_total,n_inside,n_buffer,n_outside,inserted_total,"
-      "removed_total,transport,entropy,barrier,gradient_norm,list_builds,halvings,mean_age,max_age,l1_mass,"
+      "removed_total,transport,entropy,barrier,gradient_norm,list_builds,halvings,error_estimate,rejected_steps,"
+      "mean_age,max_age,l1_mass,"
       "l1_polar_inertia,mass_ratio";
   if (has_j_ratio) header += ",polar_inertia_ratio";
   header += ",mass_blob,mass_blob_ratio";
@@ -719,6 +739,10 @@ RunResult Simulation::run(const RunOptions& options) {
   std::vector<std::pair<double, double>> mode_log;  // (t, log A) while A > 0.05 A0
   bool mode_fit_open = true;
   std::int64_t total_iterations = 0, total_evaluations = 0, total_rejected = 0, total_halvings = 0;
+  // Adaptive dt: the step being taken (fixed: d.dt, as (46) is summed), tries
+  // rejected by the error test before it, and run totals.
+  double step_dt = d.dt, dt_used_min = std::numeric_limits<double>::infinity(), dt_used_max = 0.0;
+  std::int64_t step_rejections = 0, total_step_rejections = 0, total_forced = 0;
   double total_step_seconds = 0.0, total_solver_seconds = 0.0, total_list_seconds = 0.0;
   StepRecord prev;
   std::vector<std::int32_t> region;
@@ -727,7 +751,7 @@ RunResult Simulation::run(const RunOptions& options) {
     StepRecord r;
     r.step = step;
     r.t = t;
-    r.dt = step == 0 ? 0.0 : d.dt;
+    r.dt = step == 0 ? 0.0 : step_dt;
     const std::size_t n = particles.size();
     region.assign(n, kElsewhere);
     // The buffer outside a Dirichlet face: B^ext (width b) or the reservoir band (width w).
@@ -776,21 +800,23 @@ RunResult Simulation::run(const RunOptions& options) {
       r.evaluations = sum->evaluations;
       r.list_builds = sum->list_builds;
       r.halvings = sum->halvings;
+      if (std::isfinite(sum->error_estimate)) r.error_estimate = sum->error_estimate;
+      r.rejected_steps = step_rejections;
       r.step_seconds = sum->wall_seconds;
       r.solver_seconds = sum->solver_seconds;
       r.list_seconds = sum->list_seconds;
     }
     // (46a)-(46b) as printed: sum over k = 0..K of the value at t_k times dt, all particles.
-    r.l1_mass = prev.l1_mass + r.mass_total * d.dt;
-    r.l1_polar_inertia = prev.l1_polar_inertia + r.polar_inertia_total * d.dt;
+    r.l1_mass = prev.l1_mass + r.mass_total * step_dt;
+    r.l1_polar_inertia = prev.l1_polar_inertia + r.polar_inertia_total * step_dt;
     if (step == 0) {
-      r.l1_mass = r.mass_total * d.dt;
-      r.l1_polar_inertia = r.polar_inertia_total * d.dt;
+      r.l1_mass = r.mass_total * step_dt;
+      r.l1_polar_inertia = r.polar_inertia_total * step_dt;
     } else {
-      trap_mass_inside += 0.5 * (prev.mass_inside + r.mass_inside) * d.dt;
-      trap_mass_layer += 0.5 * (prev.mass_with_layer + r.mass_with_layer) * d.dt;
-      trap_j_inside += 0.5 * (prev.polar_inertia + r.polar_inertia) * d.dt;
-      trap_j_layer += 0.5 * (prev.polar_inertia_with_layer + r.polar_inertia_with_layer) * d.dt;
+      trap_mass_inside += 0.5 * (prev.mass_inside + r.mass_inside) * step_dt;
+      trap_mass_layer += 0.5 * (prev.mass_with_layer + r.mass_with_layer) * step_dt;
+      trap_j_inside += 0.5 * (prev.polar_inertia + r.polar_inertia) * step_dt;
+      trap_j_layer += 0.5 * (prev.polar_inertia_with_layer + r.polar_inertia_with_layer) * step_dt;
     }
     r.mass_ratio = r.mass_inside / d.M_inf;
     if (d.J_inf) r.polar_inertia_ratio = r.polar_inertia / *d.J_inf;
@@ -912,6 +938,11 @@ RunResult Simulation::run(const RunOptions& options) {
     num(r.gradient_norm, "gradient_norm");
     integer(r.list_builds);
     integer(r.halvings);
+    if (r.error_estimate)
+      num(*r.error_estimate, "error_estimate");
+    else
+      line += ",";  // no estimate (first steps, explicit steppers): empty
+    integer(r.rejected_steps);
     num(r.mean_age, "mean_age");
     num(r.max_age, "max_age");
     num(r.l1_mass, "l1_mass");
@@ -1030,8 +1061,12 @@ RunResult Simulation::run(const RunOptions& options) {
           const double m = static_cast<double>(mode_log.size());
           rate = -(m * sty - st_ * sy) / (m * stt - st_ * st_);
         }
-        const std::string scheme = c.solver.stepper == "implicit" ? "implicit" : c.solver.explicit_scheme;
-        const double discrete = time_discrete_rate(scheme, lambda, d.dt);
+        const std::string scheme = c.solver.stepper != "implicit" ? c.solver.explicit_scheme
+                                   : c.solver.time_scheme == "bdf2" ? "bdf2"
+                                                                    : "implicit";
+        // Constant steps only (BDF2: its first step is Euler).
+        const double discrete = c.run.dt_mode == "fixed" ? time_discrete_rate(scheme, lambda, d.dt)
+                                                         : std::numeric_limits<double>::quiet_NaN();
         j["reference"]["wavenumber"] = d.mode_wavenumber;
         j["reference"]["kappa_k2"] = lambda;
         j["reference"]["rows_fitted"] = mode_log.size();
@@ -1046,7 +1081,11 @@ RunResult Simulation::run(const RunOptions& options) {
     j["solver_totals"] = {{"iterations", total_iterations},
                           {"evaluations", total_evaluations},
                           {"rejected_solves", total_rejected},
-                          {"halvings", total_halvings}};
+                          {"halvings", total_halvings},
+                          {"error_rejected_steps", total_step_rejections},
+                          {"steps_forced_at_dt_min", total_forced},
+                          {"dt_min_used", dt_used_max > 0.0 ? nlohmann::json(dt_used_min) : nlohmann::json(nullptr)},
+                          {"dt_max_used", dt_used_max > 0.0 ? nlohmann::json(dt_used_max) : nlohmann::json(nullptr)}};
     // Where the diffusion steps spent their time (wall clock, not reproducible).
     j["profile"] = {{"diffusion_step_seconds", total_step_seconds},
                     {"solver_seconds", total_solver_seconds},
@@ -1066,7 +1105,10 @@ RunResult Simulation::run(const RunOptions& options) {
     if (!final_line && now - last_progress < std::chrono::milliseconds(200)) return;
     last_progress = now;
     const double el = wall();
-    const double eta = r.step > 0 ? el / static_cast<double>(r.step) * static_cast<double>(d.steps_to_run - r.step) : 0.0;
+    // Adaptive dt: the number of steps is not known; time is.
+    const double eta = c.run.dt_mode == "adaptive" ? (r.t > 0.0 ? el / r.t * (c.run.t_end - r.t) : 0.0)
+                       : r.step > 0 ? el / static_cast<double>(r.step) * static_cast<double>(d.steps_to_run - r.step)
+                                    : 0.0;
     const double its = r.step > 0 ? static_cast<double>(total_iterations) / static_cast<double>(r.step) : 0.0;
     std::fprintf(stderr, "\rstep %lld/%lld  t=%.4g  n=%lld  M/M_inf=%.4f  it/step=%.1f  ETA %s   ",
                  static_cast<long long>(r.step), static_cast<long long>(d.steps_to_run), r.t,
@@ -1118,19 +1160,18 @@ RunResult Simulation::run(const RunOptions& options) {
       write_file_atomic(out / "summary.json", summary("running", "", StepRecord{}).dump(2) + "\n");
     }
 
-    auto emit = [&](const StepRecord& r) {
+    auto emit = [&](const StepRecord& r, bool final_row) {
       const std::string line = csv_row(r);
       if (write) {
         series_file.append(line);
         timing_file.append(fmt::format("{},{},{},{},{},{}\n", r.step, r.t, r.wall_seconds, r.step_seconds,
                                        r.solver_seconds, r.list_seconds));
-        if (r.step == 0 || r.step == d.steps_to_run || (c.run.vtk_interval > 0 && r.step % c.run.vtk_interval == 0))
-          snapshot(r);
+        if (r.step == 0 || final_row || (c.run.vtk_interval > 0 && r.step % c.run.vtk_interval == 0)) snapshot(r);
       }
       if (options.keep_series) result.series.push_back(r);
       prev = r;
       last = r;
-      show_progress(r, r.step == d.steps_to_run);
+      show_progress(r, final_row);
     };
 
     // The reservoir is the bath outside the Dirichlet face: it holds density g
@@ -1149,7 +1190,7 @@ RunResult Simulation::run(const RunOptions& options) {
       inserted_total += ins0;
       removed_total += rem0;
     }
-    emit(diagnostics(0, 0.0, nullptr, ins0, rem0));
+    emit(diagnostics(0, 0.0, nullptr, ins0, rem0), false);
 
     const bool advect_on = c.physics.velocity.head(dim).squaredNorm() > 0.0;
     const Vec3 u = c.physics.velocity;
@@ -1157,47 +1198,115 @@ RunResult Simulation::run(const RunOptions& options) {
     const double s_rate = c.physics.source_rate;
     const SourceField source = [s_rate](const Vec3&, double) { return s_rate; };
 
-    for (std::int64_t k = 1; k <= d.steps_to_run; ++k) {
-      const double t0 = static_cast<double>(k - 1) * d.dt;
-      const double t1 = k == d.n_steps ? c.run.t_end : static_cast<double>(k) * d.dt;
-      const double h = t1 - t0;
-      long ins = 0, rem = 0;
-      // Algorithm 1, line 2: advection.
-      if (advect_on) {
-        advect(particles, velocity, t0, h, 1);
-        for (Vec3& x : particles.positions()) x = domain_->wrap(x);
-      }
-      // Line 3: source.
-      if (s_rate != 0.0) {
-        const SourceResult sr = apply_source(particles, source, t0, h, rng);
-        for (Vec3& x : particles.positions()) x = domain_->wrap(x);
-        source_inserted += sr.inserted;
-        source_removed += sr.removed;
-        source_mass_in += sr.mass_inserted;
-        source_mass_out += sr.mass_removed;
-        ins += sr.inserted;
-        rem += sr.removed;
-        mass_in_total += sr.mass_inserted;
-        mass_out_total += sr.mass_removed;
-      }
-      // Line 4: diffusion. Nothing to move in an empty set.
-      StepSummary sum;
-      if (particles.empty()) {
-        sum.accepted = true;
-        sum.dt = h;
+    // Fixed dt: step k covers [(k-1) dt, k dt]. Adaptive dt (run.dt_mode):
+    // the controller proposes each step from the last one's error estimate;
+    // a step whose estimate exceeds run.time_tolerance is undone (advection
+    // and source included: particles, random numbers and ledger restored)
+    // and retried with the smaller step the controller gives.
+    const bool adaptive = c.run.dt_mode == "adaptive";
+    TimeStepControlOptions tco;
+    tco.tolerance = c.run.time_tolerance;
+    tco.dt_min = c.run.dt_min ? *c.run.dt_min : 1e-3 * d.dt;
+    tco.dt_max = c.run.dt_max ? *c.run.dt_max : c.run.t_end;
+    const TimeStepController controller((tco.dt_max = std::max(tco.dt_max, tco.dt_min), tco));
+    double t_now = 0.0, dt_next = std::min(std::max(d.dt, tco.dt_min), tco.dt_max);
+    const std::int64_t max_rejections = 1000;  // per step: the controller shrinks by >= 5x each time
+    for (std::int64_t k = 1;; ++k) {
+      double t0, t1;
+      if (!adaptive) {
+        if (k > d.steps_to_run) break;
+        t0 = static_cast<double>(k - 1) * d.dt;
+        t1 = k == d.n_steps ? c.run.t_end : static_cast<double>(k) * d.dt;
       } else {
-        sum = st.implicit ? st.implicit->step(particles, h) : st.explicit_stepper->step(particles, h);
+        if (t_now >= c.run.t_end || (c.run.max_steps > 0 && k > c.run.max_steps)) break;
+        t0 = t_now;
+        // The last step ends on t_end exactly; one a little longer than
+        // proposed beats a sliver of a step after it.
+        t1 = t0 + dt_next >= c.run.t_end * (1.0 - 1e-12) - 0.1 * dt_next ? c.run.t_end : t0 + dt_next;
       }
-      total_iterations += sum.iterations;
-      total_evaluations += sum.evaluations;
-      total_rejected += sum.rejected_solves;
-      total_halvings += sum.halvings;
-      total_step_seconds += sum.wall_seconds;
-      total_solver_seconds += sum.solver_seconds;
-      total_list_seconds += sum.list_seconds;
+      double h = t1 - t0;
+      long ins = 0, rem = 0;
+      StepSummary sum;
+      step_rejections = 0;
+      // Undo state for a rejected adaptive try.
+      std::optional<ParticleSet> saved;
+      std::optional<Rng> saved_rng;
+      const long saved_counts[2] = {source_inserted, source_removed};
+      const double saved_mass[4] = {source_mass_in, source_mass_out, mass_in_total, mass_out_total};
+      const bool undo_needed = adaptive && (advect_on || s_rate != 0.0);
+      for (;;) {
+        if (undo_needed) {
+          saved = particles;
+          saved_rng = rng;
+        }
+        ins = rem = 0;
+        // Algorithm 1, line 2: advection.
+        if (advect_on) {
+          advect(particles, velocity, t0, h, 1);
+          for (Vec3& x : particles.positions()) x = domain_->wrap(x);
+        }
+        // Line 3: source.
+        if (s_rate != 0.0) {
+          const SourceResult sr = apply_source(particles, source, t0, h, rng);
+          for (Vec3& x : particles.positions()) x = domain_->wrap(x);
+          source_inserted += sr.inserted;
+          source_removed += sr.removed;
+          source_mass_in += sr.mass_inserted;
+          source_mass_out += sr.mass_removed;
+          ins += sr.inserted;
+          rem += sr.removed;
+          mass_in_total += sr.mass_inserted;
+          mass_out_total += sr.mass_removed;
+        }
+        // Line 4: diffusion. Nothing to move in an empty set.
+        if (particles.empty()) {
+          sum = StepSummary{};
+          sum.accepted = true;
+          sum.dt = h;
+        } else if (st.implicit) {
+          sum = st.implicit->step(particles, h, adaptive ? controller.error_limit(h) : kNoErrorLimit);
+        } else {
+          sum = st.explicit_stepper->step(particles, h);
+        }
+        total_iterations += sum.iterations;
+        total_evaluations += sum.evaluations;
+        total_rejected += sum.rejected_solves;
+        total_halvings += sum.halvings;
+        total_step_seconds += sum.wall_seconds;
+        total_solver_seconds += sum.solver_seconds;
+        total_list_seconds += sum.list_seconds;
+        if (!adaptive) break;
+        const TimeStepDecision dec = controller.decide(h, sum.error_estimate, sum.error_order);
+        dt_next = dec.dt_next;
+        if (sum.accepted) {
+          if (dec.forced) ++total_forced;
+          break;
+        }
+        if (!sum.error_rejected) break;  // a failed solve: reported below
+        ++step_rejections;
+        ++total_step_rejections;
+        if (step_rejections > max_rejections)
+          throw RunError(fmt::format("step {} (t = {}): {} tries rejected by the error test", k, t0, step_rejections));
+        if (undo_needed) {
+          particles = std::move(*saved);
+          rng = *saved_rng;
+          source_inserted = saved_counts[0];
+          source_removed = saved_counts[1];
+          source_mass_in = saved_mass[0];
+          source_mass_out = saved_mass[1];
+          mass_in_total = saved_mass[2];
+          mass_out_total = saved_mass[3];
+        }
+        t1 = t0 + dt_next;
+        h = dt_next;
+      }
       if (!sum.accepted)
         throw RunError(fmt::format("step {} (t = {} -> {}): diffusion step not accepted ({}; {} halvings): {}", k, t0,
                                    t1, to_string(sum.reason), sum.halvings, sum.message));
+      step_dt = adaptive ? h : d.dt;
+      t_now = t1;
+      dt_used_min = std::min(dt_used_min, h);
+      dt_used_max = std::max(dt_used_max, h);
       // Lines 5-23: projection onto the boundary conditions.
       *st.step_window = {t0, t1};
       const PatchLedger pl = st.projection->apply(particles, t0, h, rng);
@@ -1223,7 +1332,7 @@ RunResult Simulation::run(const RunOptions& options) {
         throw RunError(fmt::format("mass ledger violated at step {} (t = {}): mass = {} but M(0) + inserted - removed "
                                    "= {}",
                                    k, t1, mass_now, mass_expect));
-      emit(diagnostics(k, t1, &sum, ins, rem));
+      emit(diagnostics(k, t1, &sum, ins, rem), adaptive ? t1 >= c.run.t_end || k == c.run.max_steps : k == d.steps_to_run);
     }
     if (write) {
       // Final particles as CSV (widths for histograms, positions for profiles).

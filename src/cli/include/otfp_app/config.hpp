@@ -32,6 +32,10 @@ struct RunSection {
   double dt_factor = 1.0;
   std::int64_t seed = 1;
   std::int64_t max_steps = 0;  // 0: no limit
+  std::string dt_mode = "fixed";  // fixed | adaptive (implicit stepper, docs/stepper.md)
+  double time_tolerance = 1e-2;   // adaptive: largest local error estimate per step, in blob widths
+  std::optional<double> dt_min;   // adaptive: absent = 1e-3 x the initial dt
+  std::optional<double> dt_max;   // adaptive: absent = t_end
   std::int64_t vtk_interval = 50;  // 0: initial and final snapshot only
   int threads = 1;  // 0: OpenMP default
 };
@@ -99,6 +103,8 @@ struct SolverSection {
   std::string explicit_scheme = "euler27";
   std::string width_mode = "fixed";
   std::string width_metric = "as_printed";  // as_printed | exact
+  std::string time_scheme = "euler";        // euler | bdf2
+  std::string predictor = "none";           // none | extrapolate | damped
   double displacement_tolerance = 1e-3;
   double relative_tolerance = 1e-2;
   std::int64_t max_iterations = 1000;

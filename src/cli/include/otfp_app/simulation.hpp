@@ -83,6 +83,8 @@ struct StepRecord {
   std::int64_t inserted = 0, removed = 0, inserted_total = 0, removed_total = 0;
   double energy = 0.0, transport = 0.0, entropy = 0.0, barrier = 0.0, gradient_norm = 0.0;
   std::int64_t iterations = 0, evaluations = 0, list_builds = 0, halvings = 0;
+  std::optional<double> error_estimate;           // local time-error estimate of the accepted step (in widths)
+  std::int64_t rejected_steps = 0;                // adaptive dt: tries rejected by the error test before this step
   double mean_age = 0.0, max_age = 0.0;
   double l1_mass = 0.0, l1_polar_inertia = 0.0;  // running (46a)-(46b), rectangle rule, all particles
   double mass_ratio = 0.0;                        // mass_inside / M_inf
