@@ -77,6 +77,55 @@ void BM_ImplicitStep(benchmark::State& state) {
   run_steps(state, stepper, c, static_cast<double>(state.range(2)) * c.pp.dt_explicit);
 }
 
+// Issue 11: the predictor and the time scheme at large steps. Args: backend
+// (0 Ceres, 1 NLopt), widths (0 fixed, 1 per particle), dt factor, predictor
+// (0 none, 1 extrapolate, 2 damped), scheme (0 Euler, 1 BDF2). Settled: 5
+// warm-up steps at the same dt before the 5 timed ones.
+ImplicitOptions large_step_options(benchmark::State& state, const Cloud& c) {
+  ImplicitOptions o;
+  o.minimizer.backend = state.range(0) == 0 ? Backend::Ceres : Backend::Nlopt;
+  o.width_mode = state.range(1) == 0 ? WidthMode::Fixed : WidthMode::PerParticle;
+  o.predictor = static_cast<Predictor>(state.range(3));
+  o.time_scheme = state.range(4) == 0 ? TimeScheme::Euler : TimeScheme::Bdf2;
+  o.rho_ref = 1.0 / c.ball->volume();
+  state.SetLabel(to_string(o.minimizer.backend) + "/" + to_string(o.width_mode) + "/" + to_string(o.predictor) + "/" +
+                 to_string(o.time_scheme));
+  return o;
+}
+
+void BM_LargeStep(benchmark::State& state) {
+  Cloud c = make_cloud();
+  ImplicitStepper stepper(3, large_step_options(state, c), Barrier(c.ball, c.pp.barrier_C));
+  const double dt = static_cast<double>(state.range(2)) * c.pp.dt_explicit;
+  for (int k = 0; k < 3; ++k) stepper.step(c.ps, dt);  // + 2 in run_steps
+  run_steps(state, stepper, c, dt);
+}
+
+// The first step after the step size grows 10x: 5 steps at dt/10, then each
+// timed iteration is one step at dt from a copy of that state (same history).
+void BM_FirstStepAfterDtChange(benchmark::State& state) {
+  Cloud c = make_cloud();
+  const ImplicitOptions o = large_step_options(state, c);
+  ImplicitStepper settled(3, o, Barrier(c.ball, c.pp.barrier_C));
+  const double dt = static_cast<double>(state.range(2)) * c.pp.dt_explicit;
+  for (int k = 0; k < 5; ++k) settled.step(c.ps, dt / 10.0);
+  std::vector<double> evals, ms;
+  for (auto _ : state) {
+    ImplicitStepper stepper = settled;
+    ParticleSet ps = c.ps;
+    const StepSummary s = stepper.step(ps, dt);
+    if (!s.accepted) {
+      state.SkipWithError(("step rejected: " + s.message).c_str());
+      break;
+    }
+    evals.push_back(s.evaluations);
+    ms.push_back(1e3 * s.wall_seconds);
+  }
+  state.counters["evals/step"] = median(evals);
+  state.counters["ms/step"] = median(ms);
+  state.counters["dt/dt_ex"] = dt / c.pp.dt_explicit;
+}
+
 void BM_ExplicitStep(benchmark::State& state) {
   Cloud c = make_cloud();
   ExplicitOptions o;
@@ -91,6 +140,21 @@ void BM_ExplicitStep(benchmark::State& state) {
 BENCHMARK(BM_ImplicitStep)
     ->ArgsProduct({{0, 1}, {0, 1}, {1, 10, 100}})
     ->Iterations(5)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_LargeStep)
+    ->ArgsProduct({{0, 1}, {0}, {10, 100}, {0, 1, 2}, {0, 1}})
+    ->Iterations(5)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_LargeStep)
+    ->ArgsProduct({{0}, {1}, {10}, {0, 1, 2}, {0, 1}})
+    ->Iterations(3)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_FirstStepAfterDtChange)
+    ->ArgsProduct({{0, 1}, {0}, {10, 100}, {0, 1, 2}, {0, 1}})
+    ->Iterations(1)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK(BM_ExplicitStep)->DenseRange(0, 2)->Iterations(5)->Unit(benchmark::kMillisecond)->UseRealTime();

@@ -4,7 +4,7 @@
 #
 #   scripts/studies.sh STUDY [--smoke | --full] [--jobs N] [--out DIR]
 #
-# STUDY: implicit_explicit | variable_width | diffusivity | convergence | boundaries | all
+# STUDY: implicit_explicit | variable_width | diffusivity | convergence | boundaries | large_steps | all
 #   default sizes: what docs/validation.md shows (minutes on 2 cores)
 #   --smoke      : tiny sizes, seconds (CI runs these through ctest)
 #   --full       : the papers' larger sizes (hours)
@@ -172,10 +172,43 @@ boundaries() {
     "${best_keys[@]}" --set particles.beta_factor=1 --set particles.n_inf=$bs --vary run.seed=$seeds_box
 }
 
+# Study 6 (issue 11): time to solution at matched accuracy with the default
+# (converging) treatment: explicit Euler against implicit Euler, BDF2 at fixed
+# steps and adaptive BDF2, on study 1's T = 1 window (sphere) and the papers'
+# horizons (sphere T = 15, box T = 60) at n_inf = 400. The time-discretisation
+# error is measured against explicit Euler (exact gradient) at dt/4 (the same
+# ODE as the implicit schemes as dt -> 0), whose seed-to-seed spread is the floor.
+large_steps() {
+  local n=400 t1=1 t_sphere=15 t_box=60 dts_ex="0.25,0.5,1" dts_im="1,3,10" tols="0.01,0.03,0.1"
+  case $size in
+    smoke) n=100; t1=0.05; t_sphere=0.1; t_box=0.2; dts_ex="0.5"; dts_im="1,3"; tols="0.1" ;;
+    full) n=1600 ;;
+  esac
+  local seeds="1,2"
+  [[ $size == smoke ]] && seeds="1"
+  for case in sphere_T1 sphere box; do
+    local config="$ex/sphere_dirichlet.toml" t=$t1
+    [[ $case == sphere ]] && t=$t_sphere
+    [[ $case == box ]] && { config="$ex/box_mixed.toml"; t=$t_box; }
+    local d="large_steps/$case"
+    # The long horizons: the reference and one run of each family (minutes each).
+    local ex_dts=$dts_ex im_dts=$dts_im ad_tols=$tols
+    if [[ $case != sphere_T1 && $size != smoke ]]; then ex_dts="0.5"; im_dts="3"; ad_tols="0.03"; fi
+    sweep $d/reference "$config" --timeout 7200 --set run.t_end=$t --set particles.n_inf=$n \
+      --set solver.stepper=explicit --set solver.explicit_scheme=euler_exact --set run.dt_factor=0.25 --vary run.seed=$seeds
+    sweep $d/explicit "$config" --timeout 7200 --set run.t_end=$t --set particles.n_inf=$n \
+      --set solver.stepper=explicit --vary solver.explicit_scheme=euler27,euler_exact --vary run.dt_factor=$ex_dts
+    sweep $d/implicit "$config" --timeout 7200 --set run.t_end=$t --set particles.n_inf=$n \
+      --vary solver.time_scheme=euler,bdf2 --vary run.dt_factor=$im_dts
+    sweep $d/adaptive "$config" --timeout 7200 --set run.t_end=$t --set particles.n_inf=$n \
+      --set solver.time_scheme=bdf2 --set run.dt_mode=adaptive --vary run.time_tolerance=$ad_tols
+  done
+}
+
 case "$study" in
-  implicit_explicit | variable_width | diffusivity | convergence | boundaries) "$study" ;;
-  all) implicit_explicit; variable_width; diffusivity; convergence; boundaries ;;
-  *) echo "usage: scripts/studies.sh implicit_explicit|variable_width|diffusivity|convergence|boundaries|all [--smoke|--full] [--jobs N] [--out DIR]" >&2; exit 2 ;;
+  implicit_explicit | variable_width | diffusivity | convergence | boundaries | large_steps) "$study" ;;
+  all) implicit_explicit; variable_width; diffusivity; convergence; boundaries; large_steps ;;
+  *) echo "usage: scripts/studies.sh implicit_explicit|variable_width|diffusivity|convergence|boundaries|large_steps|all [--smoke|--full] [--jobs N] [--out DIR]" >&2; exit 2 ;;
 esac
 
 if [[ $size != smoke ]]; then

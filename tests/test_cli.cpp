@@ -398,6 +398,47 @@ TEST(Cli, PeriodicBoxWithAdvectionAndSource) {
   EXPECT_EQ(r.summary["derived"]["mass_blob_method"], "total");
 }
 
+// Adaptive dt with advection and a source: tries rejected by the error test
+// are undone (particles, random numbers, source ledger), the steps vary and
+// end on t_end, and the particle and mass ledgers hold at every step (the run
+// throws otherwise). A tight tolerance forces rejections.
+TEST(Cli, AdaptiveDtUndoesRejectedTriesAndKeepsTheLedger) {
+  const RunResult r = run_example(
+      "free_space_heat.toml",
+      {"domain.type=periodic_box", "domain.lo=[-2, -2, -2]", "domain.hi=[2, 2, 2]", "particles.fill=uniform",
+       "particles.n_inf=1000", "physics.velocity=[1, 0.5, 0]", "physics.source_rate=2", "run.t_end=0.3",
+       "run.vtk_interval=0", "run.dt_mode=adaptive", "solver.time_scheme=bdf2", "run.time_tolerance=3e-4",
+       "run.dt_factor=0.1"});
+  ASSERT_EQ(r.exit_code, 0) << r.error;
+  ASSERT_GE(r.series.size(), 5u);
+  double t = 0.0, dt_lo = 1e300, dt_hi = 0.0;
+  long rejected = 0;
+  for (std::size_t i = 1; i < r.series.size(); ++i) {
+    const StepRecord& row = r.series[i];
+    EXPECT_NEAR(row.t, t + row.dt, 1e-12);
+    t = row.t;
+    dt_lo = std::min(dt_lo, row.dt);
+    dt_hi = std::max(dt_hi, row.dt);
+    rejected += row.rejected_steps;
+    // BDF2's estimate needs two steps of history.
+    EXPECT_EQ(row.error_estimate.has_value(), i >= 3) << "step " << i;
+    if (row.error_estimate) {
+      EXPECT_LE(*row.error_estimate, 3e-4) << "accepted steps meet the tolerance";
+    }
+    EXPECT_EQ(row.n_particles, r.series.front().n_particles + row.inserted_total - row.removed_total);
+  }
+  EXPECT_DOUBLE_EQ(r.last.t, 0.3);
+  EXPECT_GT(rejected, 0) << "the tolerance must force rejections";
+  EXPECT_LT(dt_lo, dt_hi) << "the step size must adapt";
+  EXPECT_EQ(r.summary["solver_totals"]["error_rejected_steps"].get<long>(), rejected);
+  EXPECT_EQ(r.summary["ledger"]["source"]["inserted"].get<long>(), r.last.inserted_total);
+  // The (46) sums use each step's own dt: the rectangle rule over the rows,
+  // the value at t_0 weighted with the first step.
+  double l1 = r.series[0].mass_total * r.series[1].dt;
+  for (std::size_t i = 1; i < r.series.size(); ++i) l1 += r.series[i].mass_total * r.series[i].dt;
+  EXPECT_NEAR(r.last.l1_mass, l1, 1e-12 * l1);
+}
+
 // A closed box with image blobs is the even extension of the periodic box:
 // the cosine fill 1 + a cos(2 pi x) on a cell-centred lattice is symmetric
 // about both walls, so the periodic run and the closed run with images are the

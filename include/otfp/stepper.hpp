@@ -64,9 +64,11 @@ struct StepSummary {
   long inserted = 0, removed = 0;           // particles, filled by source/projection steps
   // Local time-error estimate (implicit stepper): mass-weighted RMS over the
   // particles with enough history of |e_p| / s_p, e_p the Milne estimate of
-  // the step's local error (order 1: Euler, 2: BDF2); NaN when no particle has
-  // the history it needs (first steps, docs/stepper.md). Largest over substeps.
+  // the step's local error (order 1: Euler, 2: BDF2) averaged over the
+  // particle's neighbourhood (ImplicitOptions::error_smoothing); NaN when no particle has the history it
+  // needs (first steps, docs/stepper.md). Largest over substeps.
   double error_estimate = std::numeric_limits<double>::quiet_NaN();
+  double particle_error_estimate = std::numeric_limits<double>::quiet_NaN();  // the same without the average
   int error_order = 0;                      // order of the scheme the estimate belongs to
   bool error_rejected = false;              // rejected because error_estimate > the caller's limit
   long bdf2_particles = 0;                  // particles stepped with the BDF2 form (last substep)
@@ -88,6 +90,7 @@ struct ImplicitOptions {
   bool sort_particles = true;                        // reorder particles spatially at each accepted step (ids kept)
   TimeScheme time_scheme = TimeScheme::Euler;        // implicit Euler or variational BDF2
   Predictor predictor = Predictor::None;             // start of each solve
+  double error_smoothing = 2.0;                      // error estimate: smoothing length in widths s (0: per particle)
   void validate() const;
 };
 

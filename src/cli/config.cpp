@@ -91,6 +91,7 @@ const std::vector<KeySpec>& schema() {
       {"solver.width_metric", Kind::String, {"as_printed", "exact"}},
       {"solver.time_scheme", Kind::String, {"euler", "bdf2"}},
       {"solver.predictor", Kind::String, {"none", "extrapolate", "damped"}},
+      {"solver.error_smoothing", Kind::Float, {}},
       {"solver.displacement_tolerance", Kind::Float, {}},
       {"solver.relative_tolerance", Kind::Float, {}},
       {"solver.max_iterations", Kind::Int, {}},
@@ -562,6 +563,7 @@ Config to_config(const toml::table& root) {
     r.get("width_metric", s.width_metric);
     r.get("time_scheme", s.time_scheme);
     r.get("predictor", s.predictor);
+    r.get("error_smoothing", s.error_smoothing);
     r.get("displacement_tolerance", s.displacement_tolerance);
     r.get("relative_tolerance", s.relative_tolerance);
     r.get("max_iterations", s.max_iterations);
@@ -751,6 +753,9 @@ void validate(const Config& c) {
   if (s.time_scheme != "euler" && s.stepper != "implicit")
     throw ConfigError("solver.time_scheme", quoted(s.time_scheme),
                       "needs solver.stepper = \"implicit\" (explicit schemes: solver.explicit_scheme)");
+  if (!(s.error_smoothing >= 0.0 && s.error_smoothing <= 3.0))
+    throw ConfigError("solver.error_smoothing", shown(s.error_smoothing),
+                      "must be in [0, 3] widths (the neighbour list reaches about 4.3 widths)");
   if (s.predictor != "none" && s.stepper != "implicit")
     throw ConfigError("solver.predictor", quoted(s.predictor), "needs solver.stepper = \"implicit\"");
   positive(s.displacement_tolerance, "solver.displacement_tolerance");
@@ -923,6 +928,7 @@ std::string to_toml(const Config& c) {
                   {"width_metric", s.width_metric},
                   {"time_scheme", s.time_scheme},
                   {"predictor", s.predictor},
+                  {"error_smoothing", s.error_smoothing},
                   {"displacement_tolerance", s.displacement_tolerance},
                   {"relative_tolerance", s.relative_tolerance},
                   {"max_iterations", s.max_iterations},

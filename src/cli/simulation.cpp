@@ -495,6 +495,7 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
       io.width_metric = s.width_metric == "exact" ? WidthMetric::ExactGaussian : WidthMetric::AsPrinted;
       io.time_scheme = time_scheme_from_string(s.time_scheme);
       io.predictor = predictor_from_string(s.predictor);
+      io.error_smoothing = s.error_smoothing;
       io.kappa = c.physics.kappa;
       io.rho_ref = c.physics.rho_ref;
       io.neighbor = nb;
@@ -587,6 +588,7 @@ nlohmann::json Simulation::describe() const {
                    {"width_metric", s.width_metric},
                    {"time_scheme", s.time_scheme},
                    {"predictor", s.predictor},
+                   {"error_smoothing", s.error_smoothing},
                    {"displacement_tolerance", s.displacement_tolerance},
                    {"relative_tolerance", s.relative_tolerance},
                    {"max_iterations", s.max_iterations},
@@ -1110,8 +1112,9 @@ RunResult Simulation::run(const RunOptions& options) {
                        : r.step > 0 ? el / static_cast<double>(r.step) * static_cast<double>(d.steps_to_run - r.step)
                                     : 0.0;
     const double its = r.step > 0 ? static_cast<double>(total_iterations) / static_cast<double>(r.step) : 0.0;
-    std::fprintf(stderr, "\rstep %lld/%lld  t=%.4g  n=%lld  M/M_inf=%.4f  it/step=%.1f  ETA %s   ",
-                 static_cast<long long>(r.step), static_cast<long long>(d.steps_to_run), r.t,
+    std::fprintf(stderr, "\rstep %lld/%s  t=%.4g  n=%lld  M/M_inf=%.4f  it/step=%.1f  ETA %s   ",
+                 static_cast<long long>(r.step),
+                 c.run.dt_mode == "adaptive" ? "?" : std::to_string(d.steps_to_run).c_str(), r.t,
                  static_cast<long long>(r.n_particles), r.mass_ratio, its, hms(eta).c_str());
     if (final_line) std::fputc('\n', stderr);
     std::fflush(stderr);

@@ -105,6 +105,7 @@ struct SolverSection {
   std::string width_metric = "as_printed";  // as_printed | exact
   std::string time_scheme = "euler";        // euler | bdf2
   std::string predictor = "none";           // none | extrapolate | damped
+  double error_smoothing = 2.0;             // error estimate: smoothing length in widths (0: per particle)
   double displacement_tolerance = 1e-3;
   double relative_tolerance = 1e-2;
   std::int64_t max_iterations = 1000;
