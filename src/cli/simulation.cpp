@@ -1214,6 +1214,11 @@ RunResult Simulation::run(const RunOptions& options) {
     const TimeStepController controller((tco.dt_max = std::max(tco.dt_max, tco.dt_min), tco));
     double t_now = 0.0, dt_next = std::min(std::max(d.dt, tco.dt_min), tco.dt_max);
     const std::int64_t max_rejections = 1000;  // per step: the controller shrinks by >= 5x each time
+    // The last step ends on t_end exactly; one a little longer than proposed
+    // beats a sliver of a step after it.
+    auto step_end = [&](double t0, double h) {
+      return t0 + h >= c.run.t_end * (1.0 - 1e-12) - 0.1 * h ? c.run.t_end : t0 + h;
+    };
     for (std::int64_t k = 1;; ++k) {
       double t0, t1;
       if (!adaptive) {
@@ -1223,9 +1228,7 @@ RunResult Simulation::run(const RunOptions& options) {
       } else {
         if (t_now >= c.run.t_end || (c.run.max_steps > 0 && k > c.run.max_steps)) break;
         t0 = t_now;
-        // The last step ends on t_end exactly; one a little longer than
-        // proposed beats a sliver of a step after it.
-        t1 = t0 + dt_next >= c.run.t_end * (1.0 - 1e-12) - 0.1 * dt_next ? c.run.t_end : t0 + dt_next;
+        t1 = step_end(t0, dt_next);
       }
       double h = t1 - t0;
       long ins = 0, rem = 0;
@@ -1300,8 +1303,8 @@ RunResult Simulation::run(const RunOptions& options) {
           mass_in_total = saved_mass[2];
           mass_out_total = saved_mass[3];
         }
-        t1 = t0 + dt_next;
-        h = dt_next;
+        t1 = step_end(t0, dt_next);
+        h = t1 - t0;
       }
       if (!sum.accepted)
         throw RunError(fmt::format("step {} (t = {} -> {}): diffusion step not accepted ({}; {} halvings): {}", k, t0,
