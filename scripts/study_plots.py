@@ -866,6 +866,11 @@ def boundaries(sweeps, docs):
 
 
 # ------------------------------------------------------------------ study 6
+def count(row, key):
+    v = num(row, key)
+    return str(int(v)) if math.isfinite(v) else "-"
+
+
 def large_steps(sweeps, docs):
     """Time to solution at matched accuracy (issue 11): every run's wall time
     against its time-discretisation error (mean over [0, T] of |M/M_inf - the
@@ -893,12 +898,12 @@ def large_steps(sweeps, docs):
             return float(np.trapz(np.abs(s["mass_ratio"] - m), s["t"]) / s["t"][-1])
 
         floor = dt_error(series(ref_dir, ref_rows[1])) if len(ref_rows) > 1 else float("nan")
-        table = [["explicit euler_exact (reference, seed 1)", "0.25", num(ref_rows[0], "steps"),
-                  num(ref_rows[0], "evaluations"), num(ref_rows[0], "wall_seconds"), 0.0,
+        table = [["explicit euler_exact (reference, seed 1)", "0.25", count(ref_rows[0], "steps"),
+                  count(ref_rows[0], "evaluations"), num(ref_rows[0], "wall_seconds"), 0.0,
                   num(ref_rows[0], "ref_mean_abs_error")]]
         if len(ref_rows) > 1:
-            table.append(["explicit euler_exact (reference, seed 2)", "0.25", num(ref_rows[1], "steps"),
-                          num(ref_rows[1], "evaluations"), num(ref_rows[1], "wall_seconds"), floor,
+            table.append(["explicit euler_exact (reference, seed 2)", "0.25", count(ref_rows[1], "steps"),
+                          count(ref_rows[1], "evaluations"), num(ref_rows[1], "wall_seconds"), floor,
                           num(ref_rows[1], "ref_mean_abs_error")])
         styles = {"explicit": ("tab:blue", "o"), "implicit euler": ("tab:red", "s"), "implicit bdf2": ("tab:green", "^"),
                   "adaptive bdf2": ("tab:purple", "D")}
@@ -919,11 +924,11 @@ def large_steps(sweeps, docs):
                     key = label
                 s = series(d, r) if r["status"] == "completed" else None
                 e = dt_error(s) if s is not None else float("nan")
-                table.append([label, setting, num(r, "steps"), num(r, "evaluations"), num(r, "wall_seconds"), e,
+                table.append([label, setting, count(r, "steps"), count(r, "evaluations"), num(r, "wall_seconds"), e,
                               num(r, "ref_mean_abs_error") if r["status"] == "completed" else float("nan")])
                 groups.setdefault((key, label), []).append((num(r, "wall_seconds"), e))
             for (key, label), pts in groups.items():
-                pts = sorted(p for p in pts if math.isfinite(p[1]))
+                pts = sorted(p for p in pts if math.isfinite(p[1]) and p[1] > 0)  # 0: the reference itself
                 if not pts:
                     continue
                 color, marker = styles[key]
