@@ -55,6 +55,19 @@ void ExplicitStepper::velocity(const std::vector<Vec3>& x, const std::vector<dou
   } else {
     functional_.explicit_velocity(x, s, v);
   }
+  if (external_) {
+    for (std::size_t p = 0; p < x.size(); ++p) {
+      Vec3 g = Vec3::Zero();
+      external_(x[p], &g);
+      v[p] -= g;
+    }
+  }
+}
+
+void ExplicitStepper::add_external(const std::vector<Vec3>& x, const std::vector<double>& m,
+                                   FunctionalParts& parts) const {
+  if (!external_) return;
+  for (std::size_t p = 0; p < x.size(); ++p) parts.barrier += m[p] * external_(x[p], nullptr);
 }
 
 StepSummary ExplicitStepper::step(ParticleSet& particles, double dt) {
@@ -77,6 +90,7 @@ StepSummary ExplicitStepper::step(ParticleSet& particles, double dt) {
   const std::uint64_t pairs_before = functional_.entropy().pair_evaluations();
   functional_.rebuild_list(x0, s);  // particles may have moved in memory
   summary.parts_before = functional_.evaluate(x0, s, nullptr);
+  add_external(x0, particles.masses(), summary.parts_before);
   summary.f_before = summary.parts_before.total();
 
   const std::size_t n = x0.size();
@@ -104,6 +118,7 @@ StepSummary ExplicitStepper::step(ParticleSet& particles, double dt) {
     if (finite) {
       functional_.set_reference(x0, s, particles.masses());
       summary.parts_after = functional_.evaluate(x, s, nullptr);
+      add_external(x, particles.masses(), summary.parts_after);
       summary.f_after = summary.parts_after.total();
     }
   } catch (const std::runtime_error& e) {

@@ -357,6 +357,40 @@ TEST(ExplicitStepper, Rk4AndEulerAgreeForSmallSteps) {
   EXPECT_NEAR(std::log2(d[0] / d[1]), 2.0, 0.25);  // Euler's local error is O(dt^2)
 }
 
+// The external potential's force joins every explicit scheme: isolated blobs
+// (no entropy force) in U = k x^2/2 follow the schemes' update of x' = -k x
+// exactly: Euler x (1 - z), RK4 x (1 - z + z^2/2 - z^3/6 + z^4/24), z = k dt;
+// its energy is part of F.
+TEST(ExplicitStepper, ExternalPotentialMovesIsolatedBlobsByItsForce) {
+  const double k = 1.0, dt = 0.1, z = k * dt;
+  for (ExplicitScheme scheme :
+       {ExplicitScheme::EulerForce27, ExplicitScheme::EulerExactGradient, ExplicitScheme::Rk4Force27}) {
+    ParticleSet ps(1);
+    const std::vector<double> x0 = {1.0, 5.0, -7.0};
+    for (double x : x0) ps.add(Vec3(x, 0.0, 0.0), 0.05, 1.0);
+    ExplicitOptions o;
+    o.scheme = scheme;
+    o.sort_particles = false;
+    ExplicitStepper st(1, o);
+    st.set_external_potential([k](const Vec3& x, Vec3* g) {
+      if (g) *g = k * x;
+      return 0.5 * k * x.squaredNorm();
+    });
+    const StepSummary sum = st.step(ps, dt);
+    ASSERT_TRUE(sum.accepted);
+    const double g = scheme == ExplicitScheme::Rk4Force27 ? 1.0 - z + z * z / 2 - z * z * z / 6 + z * z * z * z / 24
+                                                          : 1.0 - z;
+    double u_before = 0.0, u_after = 0.0;
+    for (std::size_t i = 0; i < x0.size(); ++i) {
+      EXPECT_NEAR(ps.positions()[i][0], g * x0[i], 1e-12 * std::abs(x0[i])) << to_string(scheme);
+      u_before += 0.5 * k * x0[i] * x0[i];
+      u_after += 0.5 * k * ps.positions()[i][0] * ps.positions()[i][0];
+    }
+    EXPECT_NEAR(sum.parts_before.barrier, u_before, 1e-12 * u_before);
+    EXPECT_NEAR(sum.parts_after.barrier, u_after, 1e-12 * u_after);
+  }
+}
+
 TEST(ImplicitStepper, NonFiniteObjectiveLeavesStateUntouched) {
   const int dim = 2;
   ParticleSet ps = ball_cloud(dim, 20, 0.5, 0.2, 8);

@@ -165,11 +165,16 @@ class ExplicitStepper {
   // Widths stay fixed. A step that produces non-finite positions is rejected
   // (the particles may have been reordered, ids kept, but not moved).
   StepSummary step(ParticleSet& particles, double dt);
+  // The external potential per unit mass: its force -grad U joins the
+  // velocity of every scheme, its energy sum m U the barrier part of F.
+  void set_external_potential(ExternalPotential u) { external_ = std::move(u); }
   Barrier& barrier() { return functional_.barrier().barrier(); }
   Functional& functional() { return functional_; }
 
  private:
   void velocity(const std::vector<Vec3>& x, const std::vector<double>& s, std::vector<Vec3>& v);
+  void add_external(const std::vector<Vec3>& x, const std::vector<double>& m, FunctionalParts& parts) const;
+  ExternalPotential external_;
   int dim_;
   ExplicitOptions options_;
   Functional functional_;
