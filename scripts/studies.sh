@@ -192,14 +192,17 @@ large_steps() {
     [[ $case == box ]] && { config="$ex/box_mixed.toml"; t=$t_box; }
     local d="large_steps/$case"
     # The long horizons: the reference and one run of each family (minutes each).
-    local ex_dts=$dts_ex im_dts=$dts_im ad_tols=$tols
+    local ex_dts=$dts_ex im_dts=$dts_im ad_tols=$tols schemes_im="euler,bdf2"
     if [[ $case != sphere_T1 && $size != smoke ]]; then ex_dts="0.5"; im_dts="3"; ad_tols="0.03"; fi
+    # The box at T = 60: fixed-step BDF2 left out (about 20 min; no better than
+    # Euler at 3x on the sphere); adaptive BDF2 is there.
+    [[ $case == box && $size != smoke ]] && schemes_im="euler"
     sweep $d/reference "$config" --timeout 7200 --set run.t_end=$t --set particles.n_inf=$n \
       --set solver.stepper=explicit --set solver.explicit_scheme=euler_exact --set run.dt_factor=0.25 --vary run.seed=$seeds
     sweep $d/explicit "$config" --timeout 7200 --set run.t_end=$t --set particles.n_inf=$n \
       --set solver.stepper=explicit --vary solver.explicit_scheme=euler27,euler_exact --vary run.dt_factor=$ex_dts
     sweep $d/implicit "$config" --timeout 7200 --set run.t_end=$t --set particles.n_inf=$n \
-      --vary solver.time_scheme=euler,bdf2 --vary run.dt_factor=$im_dts
+      --vary solver.time_scheme=$schemes_im --vary run.dt_factor=$im_dts
     sweep $d/adaptive "$config" --timeout 7200 --set run.t_end=$t --set particles.n_inf=$n \
       --set solver.time_scheme=bdf2 --set run.dt_mode=adaptive --vary run.time_tolerance=$ad_tols
   done
