@@ -453,3 +453,15 @@ TEST(Config, ExamplesBetaTimesTrueSpacingSquared) {
           << e.name;
     }
 }
+
+// Issue 11's keys: each bad value or combination is one line naming the key.
+TEST(Config, TimeSchemeAndAdaptiveKeysAreChecked) {
+  EXPECT_EQ(rejection(kBase, {"run.dt_mode=adaptive", "solver.time_scheme=bdf2", "solver.predictor=damped"}), "");
+  EXPECT_EQ(rejection(kBase, {"run.dt_mode=adaptive", "solver.stepper=explicit"}).rfind("run.dt_mode = \"adaptive\": needs solver.stepper = \"implicit\"", 0), 0u);
+  EXPECT_EQ(rejection(kBase, {"solver.time_scheme=bdf2", "solver.stepper=explicit"}).rfind("solver.time_scheme = \"bdf2\": needs", 0), 0u);
+  EXPECT_EQ(rejection(kBase, {"solver.predictor=extrapolate", "solver.stepper=explicit"}).rfind("solver.predictor = \"extrapolate\": needs", 0), 0u);
+  EXPECT_EQ(rejection(kBase, {"run.time_tolerance=0"}), "run.time_tolerance = 0: must be > 0");
+  EXPECT_EQ(rejection(kBase, {"run.dt_min=0.5", "run.dt_max=0.1"}).rfind("run.dt_max = 0.1: must be >= run.dt_min", 0), 0u);
+  EXPECT_EQ(rejection(kBase, {"solver.error_smoothing=4"}).rfind("solver.error_smoothing = 4: must be in [0, 3]", 0), 0u);
+  EXPECT_NE(rejection(kBase, {"solver.time_scheme=bdf3"}).find("solver.time_scheme"), std::string::npos);
+}
