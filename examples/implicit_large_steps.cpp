@@ -51,6 +51,9 @@ int main(int argc, char** argv) {
   options.rho_ref = 1.0 / ball->volume();
   options.minimizer.backend = backend;
   options.width_mode = widths;
+  // Looser than the defaults (1e-3 / 1e-2): a large step needs fewer digits.
+  options.displacement_tolerance = 1e-2;
+  options.relative_tolerance = 1e-1;
   if (adaptive) options.time_scheme = TimeScheme::Bdf2;
   ImplicitStepper stepper(dim, options, Barrier(ball, pp.barrier_C));
 

@@ -146,8 +146,8 @@ TEST(ImplicitStepper, MatchesExplicitAsDtVanishes) {
   EXPECT_NEAR(order2, 2.0, 0.25) << diffs[1] << " " << diffs[2];
 }
 
-// Default tolerances at a step 1000x below the explicit limit: the whole
-// displacement of the step is then below the absolute tolerance (1e-2 s), so
+// A step 1000x below the explicit limit with an absolute tolerance of 1e-2 s:
+// the whole displacement of the step is then below it, so
 // without the relative rule the solve stops before it starts and nothing
 // moves; with it (1e-2 of the first gradient step) the step moves as it must.
 // Reference: forward Euler with the exact gradient, which agrees with the
@@ -166,6 +166,7 @@ TEST(ImplicitStepper, RelativeRuleConvergesTinySteps) {
   ASSERT_LT(moved, 1e-2 * s) << "the step must be in the regime the relative rule is for";
   for (double rel : {1e-2, 0.0}) {
     ImplicitOptions io;
+    io.displacement_tolerance = 1e-2;
     io.relative_tolerance = rel;
     ImplicitStepper implicit(dim, io);
     ParticleSet a = start;

@@ -78,8 +78,8 @@ struct StepSummary {
 
 struct ImplicitOptions {
   MinimizerOptions minimizer;                        // backend, algorithm, caps (gradient_tolerance is set per step)
-  double displacement_tolerance = 1e-2;              // stop when max |dt/m dF/dx| <= this x smallest width s
-  double relative_tolerance = 1e-1;                  // ... or <= this x the step's first gradient step, if smaller
+  double displacement_tolerance = 1e-3;              // stop when max |dt/m dF/dx| <= this x smallest width s
+  double relative_tolerance = 1e-2;                  // ... or <= this x the step's first gradient step, if smaller
   WidthMode width_mode = WidthMode::Fixed;           // optimise widths or not
   WidthMetric width_metric = WidthMetric::AsPrinted; // c_w = 1 or d/2
   double kappa = 1.0;                                // diffusivity
