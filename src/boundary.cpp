@@ -472,6 +472,25 @@ const std::string& BoundaryProjection::reservoir_volume_rule(std::size_t conditi
   return reservoir_of(condition_index).volume_rule;
 }
 
+BoundaryProjection::State BoundaryProjection::state() const {
+  State st;
+  st.ledger = ledger_;
+  for (const Reservoir& r : reservoirs_) st.reservoir_carry.push_back(r.carry);
+  return st;
+}
+
+void BoundaryProjection::restore(const State& st) {
+  require(st.ledger.size() == ledger_.size(), "projection state: conditions", static_cast<double>(st.ledger.size()),
+          "must equal the projection's " + std::to_string(ledger_.size()));
+  require(st.reservoir_carry.size() == reservoirs_.size(), "projection state: reservoirs",
+          static_cast<double>(st.reservoir_carry.size()), "must equal " + std::to_string(reservoirs_.size()));
+  for (std::size_t i = 0; i < reservoirs_.size(); ++i)
+    require(st.reservoir_carry[i].size() == reservoirs_[i].carry.size(), "projection state: sublayers of condition " + std::to_string(i),
+            static_cast<double>(st.reservoir_carry[i].size()), "must equal " + std::to_string(reservoirs_[i].carry.size()));
+  ledger_ = st.ledger;
+  for (std::size_t i = 0; i < reservoirs_.size(); ++i) reservoirs_[i].carry = st.reservoir_carry[i];
+}
+
 std::vector<int> BoundaryProjection::dirichlet_patches() const {
   std::vector<int> out;
   for (const PatchCondition& c : conditions_)

@@ -175,6 +175,35 @@ void ImplicitStepper::reset_history() {
   dt1_ = dt2_ = 0.0;
 }
 
+ImplicitStepper::HistoryState ImplicitStepper::history_state() const {
+  HistoryState st;
+  st.dt1 = dt1_;
+  st.dt2 = dt2_;
+  st.entries.reserve(history_.size());
+  for (const auto& [id, h] : history_) st.entries.push_back({id, h.d1, h.d2, h.ds1, h.ds2, h.count});
+  std::sort(st.entries.begin(), st.entries.end(),
+            [](const HistoryEntry& a, const HistoryEntry& b) { return a.id < b.id; });
+  return st;
+}
+
+void ImplicitStepper::restore_history(const HistoryState& st) {
+  require(std::isfinite(st.dt1) && st.dt1 >= 0.0, "history dt1", st.dt1, "must be finite and >= 0");
+  require(std::isfinite(st.dt2) && st.dt2 >= 0.0, "history dt2", st.dt2, "must be finite and >= 0");
+  std::unordered_map<ParticleId, History> map;
+  map.reserve(st.entries.size());
+  for (const HistoryEntry& e : st.entries) {
+    require(e.count >= 0 && e.count <= 2, "history count of particle " + std::to_string(e.id), e.count,
+            "must be 0, 1 or 2");
+    require(e.d1.allFinite() && e.d2.allFinite() && std::isfinite(e.ds1) && std::isfinite(e.ds2),
+            "history of particle " + std::to_string(e.id), 0.0, "must be finite");
+    require(map.emplace(e.id, History{e.d1, e.d2, e.ds1, e.ds2, e.count}).second,
+            "history of particle " + std::to_string(e.id), static_cast<double>(e.id), "appears twice");
+  }
+  history_ = std::move(map);
+  dt1_ = st.dt1;
+  dt2_ = st.dt2;
+}
+
 // The predictor's start for one particle: the extrapolation `to`, or the
 // largest of 1/2, 1/4, 1/8 of the way from `from` that is no further outside
 // the barrier domain and the mirrored walls than `from` is; else `from`.

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <string>
 
 namespace otfp {
 
@@ -24,6 +25,29 @@ ParticleId ParticleSet::add(const Vec3& x, double width_s, double mass, double b
   birth_.push_back(birth_time);
   id_.push_back(id);
   return id;
+}
+
+ParticleId ParticleSet::add_with_id(ParticleId id, const Vec3& x, double width_s, double mass, double birth_time) {
+  require(id >= 0, "particle id", static_cast<double>(id), "must be >= 0");
+  require(index_.find(id) == index_.end(), "particle id", static_cast<double>(id), "is already present");
+  const ParticleId saved = next_id_;
+  next_id_ = id;
+  try {
+    add(x, width_s, mass, birth_time);  // validates; on a throw nothing was added
+  } catch (...) {
+    next_id_ = saved;
+    throw;
+  }
+  next_id_ = std::max(saved, id + 1);
+  return id;
+}
+
+void ParticleSet::set_next_id(ParticleId next) {
+  ParticleId least = 0;
+  for (ParticleId id : id_) least = std::max(least, id + 1);
+  require(next >= least, "next particle id", static_cast<double>(next),
+          "must be >= every present id + 1 (" + std::to_string(least) + ")");
+  next_id_ = next;
 }
 
 void ParticleSet::remove(std::size_t index) {

@@ -45,6 +45,22 @@ std::uint64_t Rng::next_u64() {
   return result;
 }
 
+Rng::State Rng::state() const {
+  State st;
+  for (int i = 0; i < 4; ++i) st.s[i] = s_[i];
+  st.has_spare = has_spare_;
+  st.spare = spare_;
+  return st;
+}
+
+void Rng::set_state(const State& st) {
+  // xoshiro256** never leaves the all-zero state: it cannot come from state().
+  require((st.s[0] | st.s[1] | st.s[2] | st.s[3]) != 0, "Rng state", 0.0, "must not be all zero");
+  for (int i = 0; i < 4; ++i) s_[i] = st.s[i];
+  has_spare_ = st.has_spare;
+  spare_ = st.spare;
+}
+
 double Rng::uniform() { return static_cast<double>(next_u64() >> 11) * 0x1.0p-53; }
 double Rng::uniform(double a, double b) { return a + (b - a) * uniform(); }
 

@@ -162,6 +162,16 @@ class BoundaryProjection {
   PatchLedger apply(ParticleSet& particles, double t, double dt, Rng& rng);
 
   const std::vector<PatchLedger>& ledger() const { return ledger_; }  // indexed by position in conditions()
+
+  // What apply() carries from one call to the next (ledger with the Neumann
+  // carry and deficit, reservoir carries): restoring it into a projection
+  // built the same way continues bit for bit (checkpoints).
+  struct State {
+    std::vector<PatchLedger> ledger;                  // per condition
+    std::vector<std::vector<double>> reservoir_carry;  // per condition, per sublayer (empty if none)
+  };
+  State state() const;
+  void restore(const State& state);  // throws InvalidArgument when the shapes differ
   const std::vector<PatchCondition>& conditions() const { return conditions_; }
   // Patches that the barrier must inflate by b (the Dirichlet buffers B^ext).
   // In Reservoir mode the caller bounds the particles by reservoir_domain instead.

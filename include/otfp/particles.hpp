@@ -32,6 +32,11 @@ class ParticleSet {
 
   // Appends a particle and returns its new id.
   ParticleId add(const Vec3& x, double width_s, double mass, double birth_time = 0.0);
+  // Appends a particle with a given id (restoring a saved set): throws
+  // InvalidArgument if id < 0 or present; next_id() becomes at least id + 1.
+  ParticleId add_with_id(ParticleId id, const Vec3& x, double width_s, double mass, double birth_time = 0.0);
+  // Sets the id the next add() gives: >= every present id + 1.
+  void set_next_id(ParticleId next);
   // Removes the particle at `index`; the last particle takes its index.
   void remove(std::size_t index);
   // Removes several particles given by index (any order, no duplicates).

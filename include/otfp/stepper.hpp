@@ -110,6 +110,20 @@ class ImplicitStepper {
   // particles were changed in a way that is not a time step (a new set, a restart).
   void reset_history();
   std::size_t history_size() const { return history_.size(); }
+  // The history as data (for checkpoints), entries sorted by id; importing
+  // it into a stepper built with the same options continues bit for bit.
+  struct HistoryEntry {
+    ParticleId id = 0;
+    Vec3 d1 = Vec3::Zero(), d2 = Vec3::Zero();
+    double ds1 = 0.0, ds2 = 0.0;
+    int count = 0;
+  };
+  struct HistoryState {
+    std::vector<HistoryEntry> entries;
+    double dt1 = 0.0, dt2 = 0.0;
+  };
+  HistoryState history_state() const;
+  void restore_history(const HistoryState& state);  // throws InvalidArgument for a bad entry
   // Where the predictor (options().predictor, or Extrapolate if None) would
   // start a step of length dt, in the order of `particles`: e.g.
   // x + (dt / dt_{k-1}) (x^k - x^{k-1}), pulled back towards x where that would

@@ -39,6 +39,17 @@ class Rng {
   double uniform(double a, double b);      // in [a, b)
   double normal();                         // standard normal (Box-Muller)
   std::uint64_t below(std::uint64_t n);    // uniform integer in [0, n)
+
+  // The whole generator state (for checkpoints): restoring it continues the
+  // stream exactly where state() was taken.
+  struct State {
+    std::uint64_t s[4] = {0, 0, 0, 0};
+    bool has_spare = false;
+    double spare = 0.0;
+  };
+  State state() const;
+  void set_state(const State& state);  // throws InvalidArgument for the all-zero state
+
  private:
   std::uint64_t s_[4];
   bool has_spare_ = false;

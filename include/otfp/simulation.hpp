@@ -1,0 +1,231 @@
+#pragma once
+// Algorithm 1 of [2025] as one library object. Each step is
+//   line 2      advection by a uniform velocity,
+//   line 3      the volumetric source,
+//   line 4      the diffusive step (implicit (28) or an explicit scheme),
+//   lines 5-23  the boundary projection onto the Dirichlet and Neumann data,
+// followed by putting back particles that crossed a mirrored wall, and a
+// check of the ledger n(t) = n(0) + inserted - removed (and the same for the
+// mass). The Simulation owns its particles, random numbers, steppers and
+// projection; save_checkpoint()/load_checkpoint() continue a run bit for bit.
+//
+//   otfp::Simulation sim(domain, {{0, otfp::PatchKind::Dirichlet, 1.0}}, options);
+//   sim.start(otfp::ParticleSet(3));
+//   sim.run_until(1.0, dt, [](const otfp::Simulation& s, const otfp::SimulationStep& step) { ... });
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <limits>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "otfp/boundary.hpp"
+#include "otfp/diagnostics.hpp"
+#include "otfp/geometry.hpp"
+#include "otfp/particles.hpp"
+#include "otfp/stepper.hpp"
+#include "otfp/time_step_control.hpp"
+
+namespace otfp {
+
+enum class StepperKind { Implicit, Explicit };
+std::string to_string(StepperKind k);
+StepperKind stepper_kind_from_string(const std::string& s);  // "implicit" | "explicit"
+
+// How no-flux walls hold the particles in: the barrier (27) alone, or image
+// blobs across each wall as well (docs/boundaries.md).
+enum class NoFluxTreatment { Barrier, Images };
+std::string to_string(NoFluxTreatment t);
+NoFluxTreatment no_flux_treatment_from_string(const std::string& s);  // "barrier" | "images"
+
+// Constant data on one patch, switched on over [t_start, t_end): Dirichlet g
+// or Neumann outward flux f (a step receives the exact integral over the
+// part of the window it covers).
+struct ConstantBoundaryData {
+  int patch = -1;
+  PatchKind kind = PatchKind::Dirichlet;
+  double value = 0.0;
+  double t_start = 0.0;
+  double t_end = std::numeric_limits<double>::infinity();
+};
+
+struct SimulationOptions {
+  double particle_mass = 0.0;      // m_p of the particles the projection and source insert (> 0)
+  double width_s = 0.0;            // s = beta^-1/2 of inserted particles (> 0)
+  bool bounded = true;             // false: free space (the domain only measures; no barrier, walls or data)
+  double barrier_stiffness = 0.0;  // C of (40) (> 0 for a bounded, non-periodic domain)
+  NoFluxTreatment no_flux = NoFluxTreatment::Images;  // walls without data
+  // layer_b, the target rule, the outflow rule; dirichlet_mode = Reservoir with
+  // reservoir_thickness w > 0 puts a band outside the Dirichlet patches (its
+  // reservoir_domain is built here).
+  ProjectionOptions projection;
+  bool fill_reservoir_at_start = true;  // reservoir: fill the band before the first step (counted as step 0)
+  StepperKind stepper = StepperKind::Implicit;
+  ImplicitOptions implicit;                    // kappa, rho_ref, solver, time scheme (implicit)
+  ExplicitOptions explicit_options;            // scheme, kappa, rho_ref (explicit)
+  Vec3 velocity = Vec3::Zero();                // uniform advection velocity (line 2)
+  double source_rate = 0.0;                    // uniform volumetric source rate s (line 3)
+  TimeStepControlOptions time_control;         // advance_adaptive(): tolerance, dt_min, dt_max
+  int max_error_rejections = 1000;             // advance_adaptive(): tries per step before failing
+  std::uint64_t seed = 1;                      // random numbers (projection, source) unless start() is given an Rng
+  void validate() const;                       // throws InvalidArgument naming the field
+};
+
+// Raised by the constructor when the pieces do not fit together; stage()
+// says which part failed so that a caller can name its own input.
+class SimulationSetupError : public InvalidArgument {
+ public:
+  enum class Stage { Reservoir, ReservoirMirror, Projection, Walls, Periodic, Stepper };
+  SimulationSetupError(Stage stage, const std::string& message) : InvalidArgument(message), stage_(stage) {}
+  Stage stage() const { return stage_; }
+
+ private:
+  Stage stage_;
+};
+
+// A step that could not be taken (the diffusive solve failed, the error test
+// rejected too many tries, or the ledger broke). The state is the one the
+// step started from.
+class StepFailure : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// Counts of everything that entered or left, for the ledger check and output.
+struct SimulationLedger {
+  std::int64_t initial_particles = 0;
+  double initial_mass = 0.0;
+  std::int64_t inserted = 0, removed = 0;           // all causes
+  double mass_inserted = 0.0, mass_removed = 0.0;
+  std::int64_t source_inserted = 0, source_removed = 0;
+  double source_mass_inserted = 0.0, source_mass_removed = 0.0;
+  std::int64_t reflected = 0;  // particles put back across mirrored walls (moved, not removed)
+};
+
+// Totals over the steps taken (wall times are not reproducible).
+struct SimulationTotals {
+  std::int64_t iterations = 0, evaluations = 0, rejected_solves = 0, halvings = 0;
+  std::int64_t error_rejected_steps = 0, steps_forced_at_dt_min = 0;
+  double dt_min_used = std::numeric_limits<double>::infinity(), dt_max_used = 0.0;
+  double step_seconds = 0.0, solver_seconds = 0.0, list_seconds = 0.0;
+};
+
+// One step of Algorithm 1.
+struct SimulationStep {
+  std::int64_t step = 0;          // k: 1 for the first step
+  double t_start = 0.0, t_end = 0.0;
+  StepSummary diffusion;          // the accepted diffusive step (empty set: accepted, nothing moved)
+  std::int64_t inserted = 0, removed = 0;  // this step: source and projection
+  std::int64_t reflected = 0;     // put back across mirrored walls
+  std::int64_t error_rejections = 0;  // advance_adaptive(): tries rejected before this one
+  bool forced_at_dt_min = false;  // advance_adaptive(): accepted at dt_min above the tolerance
+  double dt_next = 0.0;           // advance_adaptive(): the controller's next proposal
+  double wall_seconds = 0.0;
+  double dt() const { return t_end - t_start; }
+};
+
+class Simulation {
+ public:
+  // boundary: the data per patch (patches not listed are no-flux walls).
+  // Builds the projection, the barrier domain (Omega, Omega inflated by b
+  // over the Dirichlet patches, or Omega with the reservoir band), the
+  // mirrored walls and the stepper; every check that needs the geometry is
+  // done here. Throws SimulationSetupError or InvalidArgument.
+  Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> boundary, SimulationOptions options);
+  ~Simulation();
+  Simulation(const Simulation&) = delete;
+  Simulation& operator=(const Simulation&) = delete;
+
+  // Sets the state at time t0 (the particles may be empty), resets ledger,
+  // totals and stepper history, and (reservoir, fill_reservoir_at_start)
+  // fills the band to its target: a zero-length projection whose counts are
+  // initial_step()'s, step 0. The Rng continues a stream the caller began
+  // (e.g. to place the particles); without it, Rng(options.seed).
+  void start(ParticleSet particles, double t0 = 0.0);
+  void start(ParticleSet particles, Rng rng, double t0 = 0.0);
+  const SimulationStep& initial_step() const { return initial_; }
+  bool started() const { return started_; }
+
+  // One step from time() to t_end (> time()). Throws StepFailure (state kept)
+  // or std::logic_error before start().
+  SimulationStep advance_to(double t_end);
+  SimulationStep advance(double dt) { return advance_to(time_ + dt); }
+  // One adaptive step (implicit stepper): tries the controller's proposal,
+  // undoes and retries tries whose error estimate exceeds the tolerance, and
+  // ends on t_limit exactly when the proposal comes within 10% of it.
+  SimulationStep advance_adaptive(double t_limit);
+  // Steps to t_end: adaptive when `adaptive`, else with n = ceil((t_end -
+  // time()) / dt) equal steps; the observer sees every step.
+  using Observer = std::function<void(const Simulation&, const SimulationStep&)>;
+  void run_until(double t_end, double dt, const Observer& observer = {}, bool adaptive = false);
+
+  double time() const { return time_; }
+  std::int64_t step_count() const { return step_; }
+  double next_dt() const { return dt_next_; }  // advance_adaptive()'s next try (0: none yet)
+  void set_next_dt(double dt);                 // the first adaptive try, or a new one
+  const ParticleSet& particles() const { return particles_; }
+  const Domain& domain() const { return *domain_; }
+  DomainPtr domain_ptr() const { return domain_; }
+  const SimulationOptions& options() const { return options_; }
+  const std::vector<ConstantBoundaryData>& boundary() const { return boundary_; }
+  const SimulationLedger& ledger() const { return ledger_; }
+  const SimulationTotals& totals() const { return totals_; }
+  // Per condition, in the order of `boundary` minus the no-flux entries;
+  // condition_of(patch) gives the index or -1.
+  const BoundaryProjection& projection() const { return *projection_; }
+  int condition_of(int patch) const;
+  // The particles' regions and the sums (43)-(44) about `center`.
+  const BufferSpec& buffer() const { return buffer_; }
+  StateMeasures measure(const Vec3& center, std::vector<std::int32_t>* region = nullptr) const;
+  // The band of the reservoir treatment (null for the papers' layer).
+  DomainPtr reservoir_domain() const { return reservoir_domain_; }
+  // What the barrier holds the particles in, and the walls with image blobs.
+  std::string barrier_domain_description() const { return barrier_description_; }
+  int mirrored_walls() const;
+  ImplicitStepper* implicit_stepper() { return implicit_.get(); }
+  ExplicitStepper* explicit_stepper() { return explicit_.get(); }
+
+  // A checkpoint holds the particles (ids, widths, masses, birth times), the
+  // random numbers, the ledger and totals, the projection's carries and
+  // deficits, the implicit stepper's history and the time and step; `extra`
+  // is kept for the caller (e.g. its own diagnostics). The file is written
+  // atomically (a temporary file renamed over `path`). load_checkpoint()
+  // needs a Simulation built from the same domain, data and options; it
+  // throws InvalidArgument (state unchanged) for a damaged or foreign file.
+  void save_checkpoint(const std::filesystem::path& path, const std::string& extra = {}) const;
+  void load_checkpoint(const std::filesystem::path& path, std::string* extra = nullptr);
+
+ private:
+  struct Undo;
+  SimulationStep take_step(double t0, double t1, double max_error, Undo* undo);
+  void undo_try(Undo& undo);
+  void finish_step(SimulationStep& step);
+  void check_ledger(std::int64_t step, double t) const;
+  void require_started(const char* what) const;
+
+  DomainPtr domain_;
+  std::vector<ConstantBoundaryData> boundary_;
+  ParticleSet particles_;
+  SimulationOptions options_;
+  Rng rng_;
+  bool started_ = false;
+  double time_ = 0.0;
+  std::int64_t step_ = 0;
+  double dt_next_ = 0.0;
+  std::vector<int> condition_of_patch_;
+  std::shared_ptr<std::pair<double, double>> step_window_;
+  std::unique_ptr<BoundaryProjection> projection_;
+  DomainPtr reservoir_domain_;
+  std::vector<std::shared_ptr<const MirrorWall>> walls_;
+  std::string barrier_description_ = "none";
+  std::unique_ptr<ImplicitStepper> implicit_;
+  std::unique_ptr<ExplicitStepper> explicit_;
+  BufferSpec buffer_;
+  SimulationLedger ledger_;
+  SimulationTotals totals_;
+  SimulationStep initial_;
+};
+
+}  // namespace otfp

@@ -1,0 +1,781 @@
+#include "otfp/simulation.hpp"
+
+#include <algorithm>
+#include <charconv>
+#include <string_view>
+#include <type_traits>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <optional>
+#include <sstream>
+#include <stdexcept>
+#include <system_error>
+#include <unistd.h>
+
+#include "otfp/barrier.hpp"
+#include "otfp/fractional.hpp"
+#include "otfp/images.hpp"
+#include "otfp/neighbor_list.hpp"
+
+namespace otfp {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double overlap(double a, double b, double lo, double hi) { return std::max(0.0, std::min(b, hi) - std::max(a, lo)); }
+
+// "{}" placeholders filled in order; doubles in their shortest round-trip
+// form (as the CLI's messages print them).
+void append(std::string& out, double v) {
+  char buf[64];
+  const auto r = std::to_chars(buf, buf + sizeof(buf), v);
+  out.append(buf, r.ptr);
+}
+void append(std::string& out, const std::string& v) { out += v; }
+void append(std::string& out, const char* v) { out += v; }
+void append(std::string& out, char v) { out += v; }
+template <class I, std::enable_if_t<std::is_integral_v<I>, int> = 0>
+void append(std::string& out, I v) {
+  out += std::to_string(v);
+}
+void format_rest(std::string& out, std::string_view pattern) { out.append(pattern); }
+template <class T, class... Rest>
+void format_rest(std::string& out, std::string_view pattern, const T& first, const Rest&... rest) {
+  const std::size_t at = pattern.find("{}");
+  if (at == std::string_view::npos) {
+    out.append(pattern);
+    return;
+  }
+  out.append(pattern.substr(0, at));
+  append(out, first);
+  format_rest(out, pattern.substr(at + 2), rest...);
+}
+template <class... Args>
+std::string format(std::string_view pattern, const Args&... args) {
+  std::string out;
+  format_rest(out, pattern, args...);
+  return out;
+}
+
+}  // namespace
+
+std::string to_string(StepperKind k) { return k == StepperKind::Implicit ? "implicit" : "explicit"; }
+
+StepperKind stepper_kind_from_string(const std::string& s) {
+  if (s == "implicit") return StepperKind::Implicit;
+  if (s == "explicit") return StepperKind::Explicit;
+  throw InvalidArgument("stepper = \"" + s + "\": must be \"implicit\" or \"explicit\"");
+}
+
+std::string to_string(NoFluxTreatment t) { return t == NoFluxTreatment::Barrier ? "barrier" : "images"; }
+
+NoFluxTreatment no_flux_treatment_from_string(const std::string& s) {
+  if (s == "barrier") return NoFluxTreatment::Barrier;
+  if (s == "images") return NoFluxTreatment::Images;
+  throw InvalidArgument("no_flux = \"" + s + "\": must be \"barrier\" or \"images\"");
+}
+
+void SimulationOptions::validate() const {
+  require(std::isfinite(particle_mass) && particle_mass > 0.0, "particle_mass", particle_mass, "must be finite and > 0");
+  require(std::isfinite(width_s) && width_s > 0.0, "width_s", width_s, "must be finite and > 0");
+  require(std::isfinite(barrier_stiffness) && barrier_stiffness >= 0.0, "barrier_stiffness", barrier_stiffness,
+          "must be finite and >= 0");
+  require(velocity.allFinite(), "velocity", velocity.norm(), "must be finite");
+  require(std::isfinite(source_rate), "source_rate", source_rate, "must be finite");
+  require(max_error_rejections >= 1, "max_error_rejections", max_error_rejections, "must be >= 1");
+  projection.validate();
+  if (stepper == StepperKind::Implicit)
+    implicit.validate();
+  else
+    explicit_options.validate();
+  time_control.validate();
+}
+
+// ------------------------------------------------------------------ building
+
+Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> boundary, SimulationOptions options)
+    : domain_(std::move(domain)),
+      boundary_(std::move(boundary)),
+      particles_(domain_ ? domain_->dim() : 3),
+      options_(std::move(options)),
+      rng_(options_.seed),
+      step_window_(std::make_shared<std::pair<double, double>>(0.0, 0.0)) {
+  if (!domain_) throw InvalidArgument("domain: must not be null");
+  // The projection and stepper options are checked where they are used, so
+  // that their errors carry their stage.
+  {
+    SimulationOptions basic = options_;
+    basic.projection = ProjectionOptions{};
+    basic.implicit = ImplicitOptions{};
+    basic.explicit_options = ExplicitOptions{};
+    basic.validate();
+  }
+  const int dim = domain_->dim();
+  const SimulationOptions& o = options_;
+
+  // Conditions, in the order of `boundary`.
+  condition_of_patch_.assign(static_cast<std::size_t>(domain_->num_patches()), -1);
+  buffer_.buffer_patch.assign(static_cast<std::size_t>(domain_->num_patches()), 0);
+  std::vector<PatchCondition> conditions;
+  std::vector<int> dirichlet_ids;
+  for (std::size_t i = 0; i < boundary_.size(); ++i) {
+    const ConstantBoundaryData& b = boundary_[i];
+    require(b.patch >= 0 && b.patch < domain_->num_patches(), format("boundary[{}].patch", i), b.patch,
+            format("must be a patch id in [0, {})", domain_->num_patches()));
+    require(condition_of_patch_[static_cast<std::size_t>(b.patch)] < 0, format("boundary[{}].patch", i), b.patch,
+            "appears twice");
+    require(std::isfinite(b.value), format("boundary[{}].value", i), b.value, "must be finite");
+    require(b.t_end >= b.t_start, format("boundary[{}].t_end", i), b.t_end, "must be >= t_start");
+    require(o.bounded, format("boundary[{}]", i), b.patch, "free space (bounded = false) takes no boundary data");
+    PatchCondition pc;
+    pc.patch = b.patch;
+    pc.kind = b.kind;
+    pc.data_is_constant = true;
+    if (b.kind == PatchKind::Dirichlet) {
+      const double g = b.value;
+      pc.data = [g](const Vec3&, double) { return g; };
+      dirichlet_ids.push_back(b.patch);
+      buffer_.buffer_patch[static_cast<std::size_t>(b.patch)] = 1;
+    } else {
+      // Neumann data is handed to the projection as its average over the
+      // step being projected, so that windows [t_start, t_end) that end inside
+      // a step still give the exact integral of f.
+      const double f = b.value, a = b.t_start, e = b.t_end;
+      const auto window = step_window_;
+      pc.data = [f, a, e, window](const Vec3&, double) {
+        const double t0 = window->first, t1 = window->second;
+        return t1 > t0 ? f * overlap(t0, t1, a, e) / (t1 - t0) : 0.0;
+      };
+    }
+    condition_of_patch_[static_cast<std::size_t>(b.patch)] = static_cast<int>(conditions.size());
+    conditions.push_back(std::move(pc));
+  }
+
+  // Reservoir treatment (docs/boundaries.md): Omega_ext = Omega extended by a
+  // band of width w over the Dirichlet patches.
+  ProjectionOptions po = o.projection;
+  if (po.dirichlet_mode == DirichletMode::Reservoir && !dirichlet_ids.empty()) {
+    try {
+      reservoir_domain_ = domain_->extended(dirichlet_ids, po.reservoir_thickness);
+    } catch (const InvalidArgument& e) {
+      throw SimulationSetupError(SimulationSetupError::Stage::Reservoir, e.what());
+    }
+    po.reservoir_domain = reservoir_domain_;
+  } else {
+    po.dirichlet_mode = DirichletMode::Layer;
+  }
+  buffer_.buffer_width = reservoir_domain_ ? po.reservoir_thickness : po.layer_b;
+  try {
+    po.validate();
+    projection_ = std::make_unique<BoundaryProjection>(domain_, std::move(conditions), po, o.particle_mass, o.width_s);
+  } catch (const InvalidArgument& e) {
+    // The odd profile mirrors the band inside Omega: a band deeper than the domain has no mirror.
+    if (reservoir_domain_ && std::string(e.what()).find("mirror image") != std::string::npos)
+      throw SimulationSetupError(SimulationSetupError::Stage::ReservoirMirror, e.what());
+    throw SimulationSetupError(SimulationSetupError::Stage::Projection, e.what());
+  }
+
+  const Periodicity periodicity = domain_->is_periodic() ? Periodicity::from_domain(*domain_) : Periodicity::none(dim);
+  const NeighborOptions& nb = o.stepper == StepperKind::Implicit ? o.implicit.neighbor : o.explicit_options.neighbor;
+  if (domain_->is_periodic()) {
+    // The neighbour list needs two list radii per period (minimum image).
+    const double radius = cutoff_radius(o.width_s, nb.kernel_tolerance) +
+                          (nb.skin >= 0.0 ? nb.skin : nb.skin_factor * o.width_s);
+    for (int k = 0; k < dim; ++k) {
+      const double side = domain_->period()[k];
+      if (side < 2.0 * radius)
+        throw SimulationSetupError(
+            SimulationSetupError::Stage::Periodic,
+            format("the periodic box side {} (axis {}) must be at least twice the neighbour-list radius {}", side,
+                        "xyz"[k], radius));
+    }
+  }
+
+  Barrier barrier;
+  if (o.bounded && !domain_->is_periodic()) {
+    try {
+      const std::vector<int> inflated = projection_->dirichlet_patches();
+      if (reservoir_domain_) {
+        // The band's back faces are no-flux walls with image blobs (a band
+        // without them over-fills); the other walls are mirrored only with Images.
+        barrier = Barrier(reservoir_domain_, o.barrier_stiffness);
+        barrier_description_ = "Omega extended by the reservoir band over the Dirichlet patches";
+        std::vector<int> open;
+        if (o.no_flux != NoFluxTreatment::Images)
+          for (int p = 0; p < domain_->num_patches(); ++p)
+            if (!buffer_.buffer_patch[static_cast<std::size_t>(p)]) open.push_back(p);
+        walls_ = mirror_walls(*reservoir_domain_, open);
+      } else {
+        const std::optional<DomainShape> shape = domain_->shape();
+        if (shape && shape->kind == DomainShape::Kind::Box && domain_->num_patches() == 2 * dim && !inflated.empty()) {
+          // Omega' = Omega u B^ext is again a box: the box extended by b over its
+          // Dirichlet faces. Its distance is exact and continuous, whereas
+          // inflating by patch jumps by up to b where the closest face changes
+          // next to a Dirichlet face.
+          Vec3 lo = shape->lo, hi = shape->hi;
+          for (int p : inflated) (p % 2 == 0 ? lo : hi)[p / 2] += (p % 2 == 0 ? -po.layer_b : po.layer_b);
+          barrier = Barrier(make_box(dim, lo, hi), o.barrier_stiffness);
+          barrier_description_ = "box extended by b over its Dirichlet faces";
+        } else {
+          barrier = Barrier(domain_, o.barrier_stiffness, inflated, po.layer_b);
+          barrier_description_ = inflated.empty() ? "Omega" : "Omega inflated by b over the Dirichlet patches";
+        }
+        if (o.no_flux == NoFluxTreatment::Images) walls_ = mirror_walls(*domain_, inflated);
+      }
+    } catch (const InvalidArgument& e) {
+      throw SimulationSetupError(SimulationSetupError::Stage::Walls, e.what());
+    }
+  }
+  try {
+    if (o.stepper == StepperKind::Implicit) {
+      implicit_ = std::make_unique<ImplicitStepper>(dim, o.implicit, barrier, periodicity);
+      if (!walls_.empty()) implicit_->functional().set_images(WallImages(walls_));
+    } else {
+      explicit_ = std::make_unique<ExplicitStepper>(dim, o.explicit_options, barrier, periodicity);
+      if (!walls_.empty()) explicit_->functional().set_images(WallImages(walls_));
+    }
+  } catch (const InvalidArgument& e) {
+    throw SimulationSetupError(SimulationSetupError::Stage::Stepper, e.what());
+  }
+}
+
+Simulation::~Simulation() = default;
+
+int Simulation::mirrored_walls() const { return static_cast<int>(walls_.size()); }
+
+int Simulation::condition_of(int patch) const {
+  return patch >= 0 && static_cast<std::size_t>(patch) < condition_of_patch_.size()
+             ? condition_of_patch_[static_cast<std::size_t>(patch)]
+             : -1;
+}
+
+StateMeasures Simulation::measure(const Vec3& center, std::vector<std::int32_t>* region) const {
+  return measure_state(*domain_, buffer_, particles_, center, time_, region);
+}
+
+void Simulation::set_next_dt(double dt) {
+  require(std::isfinite(dt) && dt > 0.0, "next dt", dt, "must be finite and > 0");
+  dt_next_ = dt;
+}
+
+// ------------------------------------------------------------------ stepping
+
+void Simulation::start(ParticleSet particles, double t0) { start(std::move(particles), Rng(options_.seed), t0); }
+
+void Simulation::start(ParticleSet particles, Rng rng, double t0) {
+  require(particles.dim() == domain_->dim(), "particles dim", particles.dim(),
+          "must equal the domain's dim " + std::to_string(domain_->dim()));
+  require(std::isfinite(t0), "t0", t0, "must be finite");
+  particles_ = std::move(particles);
+  rng_ = rng;
+  time_ = t0;
+  step_ = 0;
+  ledger_ = SimulationLedger{};
+  totals_ = SimulationTotals{};
+  ledger_.initial_particles = static_cast<std::int64_t>(particles_.size());
+  ledger_.initial_mass = particles_.total_mass();
+  if (implicit_) implicit_->reset_history();
+  initial_ = SimulationStep{};
+  initial_.t_start = initial_.t_end = t0;
+  initial_.diffusion.accepted = true;
+  // The reservoir is the bath outside the Dirichlet face: it holds density g
+  // from t = 0, so it is filled before the first step (a zero-length
+  // projection: Neumann patches move nothing). Otherwise nothing can cross the
+  // face during step 1 and M lags Crank by a whole step. The papers' layer
+  // starts empty, as in Algorithm 1.
+  if (options_.fill_reservoir_at_start && reservoir_domain_) {
+    *step_window_ = {t0, t0};
+    const PatchLedger pl = projection_->apply(particles_, t0, 0.0, rng_);
+    initial_.inserted = pl.inserted;
+    initial_.removed = pl.removed;
+    ledger_.inserted += pl.inserted;
+    ledger_.removed += pl.removed;
+    ledger_.mass_inserted += pl.mass_inserted;
+    ledger_.mass_removed += pl.mass_removed;
+  }
+  started_ = true;
+}
+
+struct Simulation::Undo {
+  bool saved = false;  // only when advection or the source changed the state before the solve
+  ParticleSet particles;
+  Rng rng;
+  SimulationLedger ledger;
+};
+
+// Lines 2-4 of one try over [t0, t1]; the totals count every try.
+SimulationStep Simulation::take_step(double t0, double t1, double max_error, Undo* undo) {
+  const int dim = domain_->dim();
+  const bool advect_on = options_.velocity.head(dim).squaredNorm() > 0.0;
+  const double s_rate = options_.source_rate;
+  if (undo && (advect_on || s_rate != 0.0)) {
+    undo->saved = true;
+    undo->particles = particles_;
+    undo->rng = rng_;
+    undo->ledger = ledger_;
+  }
+  SimulationStep s;
+  s.step = step_ + 1;
+  s.t_start = t0;
+  s.t_end = t1;
+  const double h = t1 - t0;
+  // Line 2: advection.
+  if (advect_on) {
+    const Vec3 u = options_.velocity;
+    advect(particles_, [u](const Vec3&, double) { return u; }, t0, h, 1);
+    for (Vec3& x : particles_.positions()) x = domain_->wrap(x);
+  }
+  // Line 3: source.
+  if (s_rate != 0.0) {
+    const SourceResult sr = apply_source(particles_, [s_rate](const Vec3&, double) { return s_rate; }, t0, h, rng_);
+    for (Vec3& x : particles_.positions()) x = domain_->wrap(x);
+    ledger_.source_inserted += sr.inserted;
+    ledger_.source_removed += sr.removed;
+    ledger_.source_mass_inserted += sr.mass_inserted;
+    ledger_.source_mass_removed += sr.mass_removed;
+    ledger_.mass_inserted += sr.mass_inserted;
+    ledger_.mass_removed += sr.mass_removed;
+    s.inserted += sr.inserted;
+    s.removed += sr.removed;
+  }
+  // Line 4: diffusion. Nothing to move in an empty set.
+  if (particles_.empty()) {
+    s.diffusion = StepSummary{};
+    s.diffusion.accepted = true;
+    s.diffusion.dt = h;
+  } else if (implicit_) {
+    s.diffusion = implicit_->step(particles_, h, max_error);
+  } else {
+    s.diffusion = explicit_->step(particles_, h);
+  }
+  totals_.iterations += s.diffusion.iterations;
+  totals_.evaluations += s.diffusion.evaluations;
+  totals_.rejected_solves += s.diffusion.rejected_solves;
+  totals_.halvings += s.diffusion.halvings;
+  totals_.step_seconds += s.diffusion.wall_seconds;
+  totals_.solver_seconds += s.diffusion.solver_seconds;
+  totals_.list_seconds += s.diffusion.list_seconds;
+  return s;
+}
+
+void Simulation::undo_try(Undo& undo) {
+  if (!undo.saved) return;
+  particles_ = std::move(undo.particles);
+  rng_ = undo.rng;
+  ledger_ = undo.ledger;
+  undo.saved = false;
+}
+
+// Lines 5-23 and the ledger, after an accepted diffusive step.
+void Simulation::finish_step(SimulationStep& s) {
+  const double h = s.t_end - s.t_start;
+  totals_.dt_min_used = std::min(totals_.dt_min_used, h);
+  totals_.dt_max_used = std::max(totals_.dt_max_used, h);
+  *step_window_ = {s.t_start, s.t_end};
+  const PatchLedger pl = projection_->apply(particles_, s.t_start, h, rng_);
+  // Mirrored walls: a particle that crossed one is reflected back (its image
+  // would push it further out); moved, not removed, so counted apart.
+  if (!walls_.empty()) s.reflected = static_cast<std::int64_t>(reflect_inside(walls_, particles_.positions()));
+  ledger_.reflected += s.reflected;
+  s.inserted += pl.inserted;
+  s.removed += pl.removed;
+  ledger_.mass_inserted += pl.mass_inserted;
+  ledger_.mass_removed += pl.mass_removed;
+  ledger_.inserted += s.inserted;
+  ledger_.removed += s.removed;
+  s.diffusion.inserted = s.inserted;
+  s.diffusion.removed = s.removed;
+  time_ = s.t_end;
+  step_ = s.step;
+  check_ledger(s.step, s.t_end);
+}
+
+void Simulation::check_ledger(std::int64_t k, double t) const {
+  const SimulationLedger& l = ledger_;
+  const std::int64_t expect_n = l.initial_particles + l.inserted - l.removed;
+  if (static_cast<std::int64_t>(particles_.size()) != expect_n)
+    throw StepFailure(format("particle ledger violated at step {} (t = {}): n = {} but n(0) + inserted - removed "
+                                  "= {} + {} - {} = {}",
+                                  k, t, particles_.size(), l.initial_particles, l.inserted, l.removed, expect_n));
+  const double mass_now = particles_.total_mass();
+  const double mass_expect = l.initial_mass + l.mass_inserted - l.mass_removed;
+  if (!(std::abs(mass_now - mass_expect) <= 1e-9 * (l.initial_mass + l.mass_inserted + options_.particle_mass)))
+    throw StepFailure(format("mass ledger violated at step {} (t = {}): mass = {} but M(0) + inserted - removed "
+                                  "= {}",
+                                  k, t, mass_now, mass_expect));
+}
+
+void Simulation::require_started(const char* what) const {
+  if (!started_) throw std::logic_error(std::string("Simulation::") + what + ": call start() or load_checkpoint() first");
+}
+
+SimulationStep Simulation::advance_to(double t1) {
+  require_started("advance_to");
+  require(std::isfinite(t1) && t1 > time_, "step end t", t1, format("must be finite and > the current time {}", time_));
+  const auto wall0 = Clock::now();
+  Undo undo;
+  SimulationStep s = take_step(time_, t1, std::numeric_limits<double>::infinity(), &undo);
+  if (!s.diffusion.accepted) {
+    undo_try(undo);
+    throw StepFailure(format("step {} (t = {} -> {}): diffusion step not accepted ({}; {} halvings): {}", s.step,
+                                  s.t_start, s.t_end, to_string(s.diffusion.reason), s.diffusion.halvings,
+                                  s.diffusion.message));
+  }
+  finish_step(s);
+  s.wall_seconds = std::chrono::duration<double>(Clock::now() - wall0).count();
+  return s;
+}
+
+SimulationStep Simulation::advance_adaptive(double t_limit) {
+  require_started("advance_adaptive");
+  require(std::isfinite(t_limit) && t_limit > time_, "t_limit", t_limit,
+          format("must be finite and > the current time {}", time_));
+  if (!implicit_) throw InvalidArgument("stepper = \"explicit\": adaptive steps need the implicit stepper's error estimate");
+  require(dt_next_ > 0.0, "next dt", dt_next_, "must be set (set_next_dt) before the first adaptive step");
+  const auto wall0 = Clock::now();
+  const TimeStepController controller(options_.time_control);
+  // The last step ends on t_limit exactly; one a little longer than proposed
+  // beats a sliver of a step after it.
+  auto step_end = [&](double t0, double h) { return t0 + h >= t_limit * (1.0 - 1e-12) - 0.1 * h ? t_limit : t0 + h; };
+  const double t0 = time_;
+  double t1 = step_end(t0, dt_next_);
+  std::int64_t rejections = 0;
+  for (;;) {
+    const double h = t1 - t0;
+    Undo undo;
+    SimulationStep s = take_step(t0, t1, controller.error_limit(h), &undo);
+    const TimeStepDecision dec = controller.decide(h, s.diffusion.error_estimate, s.diffusion.error_order);
+    dt_next_ = dec.dt_next;
+    if (s.diffusion.accepted) {
+      if (dec.forced) {
+        ++totals_.steps_forced_at_dt_min;
+        s.forced_at_dt_min = true;
+      }
+      s.error_rejections = rejections;
+      s.dt_next = dt_next_;
+      finish_step(s);
+      s.wall_seconds = std::chrono::duration<double>(Clock::now() - wall0).count();
+      return s;
+    }
+    undo_try(undo);
+    if (!s.diffusion.error_rejected)
+      throw StepFailure(format("step {} (t = {} -> {}): diffusion step not accepted ({}; {} halvings): {}", s.step,
+                                    t0, t1, to_string(s.diffusion.reason), s.diffusion.halvings, s.diffusion.message));
+    ++rejections;
+    ++totals_.error_rejected_steps;
+    if (rejections > options_.max_error_rejections)
+      throw StepFailure(format("step {} (t = {}): {} tries rejected by the error test", s.step, t0, rejections));
+    t1 = step_end(t0, dt_next_);
+  }
+}
+
+void Simulation::run_until(double t_end, double dt, const Observer& observer, bool adaptive) {
+  require_started("run_until");
+  require(std::isfinite(t_end) && t_end > time_, "t_end", t_end,
+          format("must be finite and > the current time {}", time_));
+  require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
+  if (adaptive) {
+    if (!(dt_next_ > 0.0)) dt_next_ = dt;
+    while (time_ < t_end) {
+      const SimulationStep s = advance_adaptive(t_end);
+      if (observer) observer(*this, s);
+    }
+    return;
+  }
+  const double t0 = time_;
+  const std::int64_t n = std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil((t_end - t0) / dt * (1.0 - 1e-12))));
+  const double h = (t_end - t0) / static_cast<double>(n);
+  for (std::int64_t i = 1; i <= n; ++i) {
+    const SimulationStep s = advance_to(i == n ? t_end : t0 + static_cast<double>(i) * h);
+    if (observer) observer(*this, s);
+  }
+}
+
+// ------------------------------------------------------------------ checkpoints
+//
+// Binary, native byte order (a checkpoint is for the machine that wrote it):
+// "OTFPCKP1", then the fields below in order, then an FNV-1a 64 checksum of
+// everything before it.
+
+namespace {
+
+constexpr char kMagic[8] = {'O', 'T', 'F', 'P', 'C', 'K', 'P', '1'};
+
+class Writer {
+ public:
+  template <class T>
+  void put(const T& v) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    const char* p = reinterpret_cast<const char*>(&v);
+    bytes_.append(p, sizeof(T));
+  }
+  void put_vec(const Vec3& v) {
+    for (int k = 0; k < 3; ++k) put(v[k]);
+  }
+  void put_string(const std::string& s) {
+    put(static_cast<std::uint64_t>(s.size()));
+    bytes_ += s;
+  }
+  std::string& bytes() { return bytes_; }
+
+ private:
+  std::string bytes_;
+};
+
+class Reader {
+ public:
+  Reader(const std::string& bytes, std::string file) : bytes_(bytes), file_(std::move(file)) {}
+  template <class T>
+  T get() {
+    static_assert(std::is_trivially_copyable_v<T>);
+    if (pos_ + sizeof(T) > bytes_.size()) fail("truncated");
+    T v;
+    std::memcpy(&v, bytes_.data() + pos_, sizeof(T));
+    pos_ += sizeof(T);
+    return v;
+  }
+  Vec3 get_vec() {
+    Vec3 v;
+    for (int k = 0; k < 3; ++k) v[k] = get<double>();
+    return v;
+  }
+  std::string get_string() {
+    const auto n = get<std::uint64_t>();
+    if (n > bytes_.size() - pos_) fail("truncated");
+    std::string s = bytes_.substr(pos_, n);
+    pos_ += n;
+    return s;
+  }
+  std::uint64_t count(std::uint64_t max_count, const char* what) {
+    const auto n = get<std::uint64_t>();
+    if (n > max_count) fail(format("{} count {} is implausible", what, n));
+    return n;
+  }
+  [[noreturn]] void fail(const std::string& why) const {
+    throw InvalidArgument("checkpoint " + file_ + ": " + why);
+  }
+  bool at_end() const { return pos_ == bytes_.size(); }
+
+ private:
+  const std::string& bytes_;
+  std::string file_;
+  std::size_t pos_ = 0;
+};
+
+std::uint64_t fnv1a(const char* p, std::size_t n) {
+  std::uint64_t h = 14695981039346656037ull;
+  for (std::size_t i = 0; i < n; ++i) {
+    h ^= static_cast<unsigned char>(p[i]);
+    h *= 1099511628211ull;
+  }
+  return h;
+}
+
+void put_patch_ledger(Writer& w, const PatchLedger& l) {
+  w.put(static_cast<std::int64_t>(l.inserted));
+  w.put(static_cast<std::int64_t>(l.removed));
+  w.put(l.mass_inserted);
+  w.put(l.mass_removed);
+  w.put(static_cast<std::int64_t>(l.absorbed));
+  w.put(l.mass_absorbed);
+  w.put(l.flux_integral);
+  w.put(l.carry);
+  w.put(l.deficit);
+}
+
+PatchLedger get_patch_ledger(Reader& r) {
+  PatchLedger l;
+  l.inserted = static_cast<long>(r.get<std::int64_t>());
+  l.removed = static_cast<long>(r.get<std::int64_t>());
+  l.mass_inserted = r.get<double>();
+  l.mass_removed = r.get<double>();
+  l.absorbed = static_cast<long>(r.get<std::int64_t>());
+  l.mass_absorbed = r.get<double>();
+  l.flux_integral = r.get<double>();
+  l.carry = r.get<double>();
+  l.deficit = r.get<double>();
+  return l;
+}
+
+}  // namespace
+
+void Simulation::save_checkpoint(const std::filesystem::path& path, const std::string& extra) const {
+  require_started("save_checkpoint");
+  Writer w;
+  w.bytes().append(kMagic, sizeof(kMagic));
+  w.put(static_cast<std::int32_t>(domain_->dim()));
+  w.put(static_cast<std::int32_t>(domain_->num_patches()));
+  w.put(static_cast<std::uint64_t>(boundary_.size()));
+  w.put(static_cast<std::int32_t>(options_.stepper == StepperKind::Implicit));
+  w.put(time_);
+  w.put(step_);
+  w.put(dt_next_);
+  // Particles, in their current order (the order is part of the state).
+  w.put(static_cast<std::uint64_t>(particles_.size()));
+  w.put(particles_.next_id());
+  for (std::size_t p = 0; p < particles_.size(); ++p) {
+    w.put(particles_.ids()[p]);
+    w.put_vec(particles_.positions()[p]);
+    w.put(particles_.widths()[p]);
+    w.put(particles_.masses()[p]);
+    w.put(particles_.birth_times()[p]);
+  }
+  const Rng::State rs = rng_.state();
+  for (std::uint64_t v : rs.s) w.put(v);
+  w.put(static_cast<std::int32_t>(rs.has_spare));
+  w.put(rs.spare);
+  w.put(ledger_);
+  w.put(totals_);
+  const BoundaryProjection::State ps = projection_->state();
+  w.put(static_cast<std::uint64_t>(ps.ledger.size()));
+  for (const PatchLedger& l : ps.ledger) put_patch_ledger(w, l);
+  w.put(static_cast<std::uint64_t>(ps.reservoir_carry.size()));
+  for (const auto& c : ps.reservoir_carry) {
+    w.put(static_cast<std::uint64_t>(c.size()));
+    for (double v : c) w.put(v);
+  }
+  ImplicitStepper::HistoryState hs;
+  if (implicit_) hs = implicit_->history_state();
+  w.put(hs.dt1);
+  w.put(hs.dt2);
+  w.put(static_cast<std::uint64_t>(hs.entries.size()));
+  for (const auto& e : hs.entries) {
+    w.put(e.id);
+    w.put_vec(e.d1);
+    w.put_vec(e.d2);
+    w.put(e.ds1);
+    w.put(e.ds2);
+    w.put(static_cast<std::int32_t>(e.count));
+  }
+  w.put(initial_.inserted);
+  w.put(initial_.removed);
+  w.put_string(extra);
+  w.put(fnv1a(w.bytes().data(), w.bytes().size()));
+
+  // Atomic: a temporary file in the same directory, flushed, then renamed.
+  const std::filesystem::path tmp = path.string() + ".tmp" + std::to_string(::getpid());
+  {
+    std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
+    if (!f) throw std::runtime_error("cannot write checkpoint " + tmp.string());
+    f.write(w.bytes().data(), static_cast<std::streamsize>(w.bytes().size()));
+    f.flush();
+    if (!f) {
+      std::error_code ec;
+      std::filesystem::remove(tmp, ec);
+      throw std::runtime_error("cannot write checkpoint " + tmp.string() + " (disk full?)");
+    }
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) {
+    std::filesystem::remove(tmp, ec);
+    throw std::runtime_error("cannot rename checkpoint to " + path.string());
+  }
+}
+
+void Simulation::load_checkpoint(const std::filesystem::path& path, std::string* extra) {
+  std::string bytes;
+  {
+    std::ifstream f(path, std::ios::binary);
+    if (!f) throw InvalidArgument("checkpoint " + path.string() + ": cannot read");
+    std::ostringstream ss;
+    ss << f.rdbuf();
+    bytes = ss.str();
+  }
+  Reader r(bytes, path.string());
+  if (bytes.size() < sizeof(kMagic) + 8 || std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0)
+    r.fail("not an otfp checkpoint (bad magic)");
+  std::uint64_t stored;
+  std::memcpy(&stored, bytes.data() + bytes.size() - 8, 8);
+  if (fnv1a(bytes.data(), bytes.size() - 8) != stored) r.fail("checksum mismatch (damaged file)");
+  const std::string body = bytes.substr(0, bytes.size() - 8);
+  Reader b(body, path.string());
+  for (std::size_t i = 0; i < sizeof(kMagic); ++i) b.get<char>();
+  if (b.get<std::int32_t>() != domain_->dim()) b.fail("written for another dimension");
+  if (b.get<std::int32_t>() != domain_->num_patches()) b.fail("written for a domain with other patches");
+  if (b.get<std::uint64_t>() != boundary_.size()) b.fail("written with other boundary data");
+  if ((b.get<std::int32_t>() != 0) != (options_.stepper == StepperKind::Implicit)) b.fail("written with another stepper");
+  const double t = b.get<double>();
+  const auto step = b.get<std::int64_t>();
+  const double dt_next = b.get<double>();
+  const std::uint64_t n = b.count(body.size() / 64, "particle");
+  const auto next_id = b.get<ParticleId>();
+  ParticleSet particles(domain_->dim());
+  particles.reserve(n);
+  try {
+    for (std::uint64_t i = 0; i < n; ++i) {
+      const auto id = b.get<ParticleId>();
+      const Vec3 x = b.get_vec();
+      const double s = b.get<double>(), m = b.get<double>(), birth = b.get<double>();
+      particles.add_with_id(id, x, s, m, birth);
+    }
+    particles.set_next_id(next_id);
+  } catch (const InvalidArgument& e) {
+    b.fail(e.what());
+  }
+  Rng::State rs;
+  for (std::uint64_t& v : rs.s) v = b.get<std::uint64_t>();
+  rs.has_spare = b.get<std::int32_t>() != 0;
+  rs.spare = b.get<double>();
+  const auto ledger = b.get<SimulationLedger>();
+  const auto totals = b.get<SimulationTotals>();
+  BoundaryProjection::State ps;
+  ps.ledger.resize(b.count(1u << 20, "condition"));
+  for (PatchLedger& l : ps.ledger) l = get_patch_ledger(b);
+  ps.reservoir_carry.resize(b.count(1u << 20, "reservoir"));
+  for (auto& c : ps.reservoir_carry) {
+    c.resize(b.count(1u << 20, "sublayer"));
+    for (double& v : c) v = b.get<double>();
+  }
+  ImplicitStepper::HistoryState hs;
+  hs.dt1 = b.get<double>();
+  hs.dt2 = b.get<double>();
+  hs.entries.resize(b.count(body.size() / 64, "history"));
+  for (auto& e : hs.entries) {
+    e.id = b.get<ParticleId>();
+    e.d1 = b.get_vec();
+    e.d2 = b.get_vec();
+    e.ds1 = b.get<double>();
+    e.ds2 = b.get<double>();
+    e.count = b.get<std::int32_t>();
+  }
+  const auto ins0 = b.get<std::int64_t>(), rem0 = b.get<std::int64_t>();
+  std::string user = b.get_string();
+  if (!b.at_end()) b.fail("trailing bytes");
+  if (!std::isfinite(t)) b.fail("non-finite time");
+
+  // Everything read: apply (each restore validates before changing anything).
+  try {
+    Rng(0).set_state(rs);
+    const BoundaryProjection::State old = projection_->state();
+    projection_->restore(ps);
+    if (implicit_) {
+      try {
+        implicit_->restore_history(hs);
+      } catch (...) {
+        projection_->restore(old);
+        throw;
+      }
+    }
+    rng_.set_state(rs);
+  } catch (const InvalidArgument& e) {
+    b.fail(e.what());
+  }
+  particles_ = std::move(particles);
+  time_ = t;
+  step_ = step;
+  dt_next_ = dt_next;
+  ledger_ = ledger;
+  totals_ = totals;
+  initial_ = SimulationStep{};
+  initial_.inserted = ins0;
+  initial_.removed = rem0;
+  initial_.diffusion.accepted = true;
+  started_ = true;
+  if (extra) *extra = std::move(user);
+}
+
+}  // namespace otfp

@@ -1,0 +1,227 @@
+// otfp::Simulation: Algorithm 1 as a library object (ledger, failed steps,
+// observers, checkpoints).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <string>
+
+#include "otfp/images.hpp"
+#include "otfp/parameters.hpp"
+#include "otfp/simulation.hpp"
+
+using namespace otfp;
+
+namespace {
+
+// A disc of radius 1 held at g on its boundary, the papers' rules (36)-(40)
+// for n_inf particles; the reservoir band or the papers' layer.
+struct Disc {
+  int dim = 2;
+  std::size_t n_inf = 150;
+  DomainPtr domain = make_ball(2, Vec3::Zero(), 1.0);
+  PaperParameters pp;
+  SimulationOptions options;
+  Disc(bool reservoir, TimeScheme scheme = TimeScheme::Euler) {
+    pp = paper_parameters(domain->volume(), n_inf, dim, 1.0, 1.0, 2.0);
+    options.particle_mass = 1.0 / static_cast<double>(n_inf);
+    options.width_s = pp.width_s;
+    options.barrier_stiffness = pp.barrier_C;
+    options.projection.layer_b = pp.layer_b;
+    options.implicit.time_scheme = scheme;
+    options.implicit.rho_ref = 1.0;
+    if (reservoir) {
+      options.projection.dirichlet_mode = DirichletMode::Reservoir;
+      options.projection.reservoir_thickness = cutoff_radius(pp.width_s, 1e-8);
+      options.projection.reservoir_sublayers = 2;
+    }
+  }
+  std::unique_ptr<Simulation> make() const {
+    return std::make_unique<Simulation>(domain, std::vector<ConstantBoundaryData>{{0, PatchKind::Dirichlet, 1.0 / domain->volume()}},
+                                        options);
+  }
+  ParticleSet cloud(std::size_t n, std::uint64_t seed) const {
+    Rng rng(seed);
+    ParticleSet ps(dim);
+    for (std::size_t i = 0; i < n; ++i) ps.add(0.6 * domain->sample_interior(rng), pp.width_s, options.particle_mass);
+    return ps;
+  }
+};
+
+bool same_state(const ParticleSet& a, const ParticleSet& b) {
+  return a.positions() == b.positions() && a.widths() == b.widths() && a.masses() == b.masses() &&
+         a.ids() == b.ids() && a.birth_times() == b.birth_times() && a.next_id() == b.next_id();
+}
+
+std::filesystem::path temp_file(const std::string& name) {
+  return std::filesystem::temp_directory_path() / ("otfp_test_simulation_" + std::to_string(::getpid()) + "_" + name);
+}
+
+}  // namespace
+
+// n(t) = n(0) + inserted - removed and the same for the mass, step by step,
+// from the per-step counts the library reports (the library checks it too;
+// here it is recounted from outside).
+TEST(Simulation, LedgerBalancesEveryStep) {
+  Disc disc(true);
+  auto sim = disc.make();
+  sim->start(disc.cloud(40, 3));
+  std::int64_t n = 40 + sim->initial_step().inserted - sim->initial_step().removed;
+  EXPECT_GT(sim->initial_step().inserted, 0) << "the reservoir band is filled before the first step";
+  EXPECT_EQ(static_cast<std::int64_t>(sim->particles().size()), n);
+  for (int k = 1; k <= 4; ++k) {
+    const SimulationStep s = sim->advance(disc.pp.dt_explicit);
+    n += s.inserted - s.removed;
+    EXPECT_EQ(s.step, k);
+    EXPECT_EQ(s.diffusion.inserted, s.inserted) << "StepSummary carries the step's counts";
+    EXPECT_EQ(s.diffusion.removed, s.removed);
+    EXPECT_EQ(static_cast<std::int64_t>(sim->particles().size()), n);
+  }
+  const SimulationLedger& l = sim->ledger();
+  EXPECT_NEAR(sim->particles().total_mass(), l.initial_mass + l.mass_inserted - l.mass_removed, 1e-12);
+  EXPECT_DOUBLE_EQ(sim->time(), 4 * disc.pp.dt_explicit);
+}
+
+// run_until: equal steps ending on t_end exactly, every step observed.
+TEST(Simulation, RunUntilShowsEveryStepAndEndsOnTheTime) {
+  Disc disc(false);
+  auto sim = disc.make();
+  sim->start(disc.cloud(30, 5));
+  std::vector<double> ends;
+  const double t_end = 2.5 * disc.pp.dt_explicit;
+  sim->run_until(t_end, disc.pp.dt_explicit, [&](const Simulation& s, const SimulationStep& step) {
+    EXPECT_EQ(s.time(), step.t_end);
+    ends.push_back(step.t_end);
+  });
+  ASSERT_EQ(ends.size(), 3u) << "ceil(2.5) steps";
+  EXPECT_EQ(ends.back(), t_end);
+  EXPECT_NEAR(ends[0], t_end / 3.0, 1e-15);
+}
+
+// A failed diffusive step throws and leaves the state the step started from,
+// even after advection and the source have run.
+TEST(Simulation, FailedStepKeepsTheState) {
+  Disc disc(false);
+  disc.options.velocity = Vec3(0.3, 0.0, 0.0);
+  disc.options.source_rate = 2.0;
+  disc.options.implicit.max_halvings = 0;
+  auto sim = disc.make();
+  sim->start(disc.cloud(30, 7));
+  sim->advance(disc.pp.dt_explicit);
+  const ParticleSet before = sim->particles();
+  const SimulationLedger ledger = sim->ledger();
+  sim->implicit_stepper()->set_external_potential([](const Vec3&, Vec3* g) {
+    if (g) g->setZero();
+    return std::nan("");
+  });
+  EXPECT_THROW(sim->advance(disc.pp.dt_explicit), StepFailure);
+  EXPECT_TRUE(same_state(sim->particles(), before));
+  EXPECT_EQ(sim->ledger().source_inserted, ledger.source_inserted);
+  EXPECT_EQ(sim->step_count(), 1);
+}
+
+// A checkpoint taken after k steps and loaded into a fresh Simulation
+// continues bit for bit: particles, ledger, projection carries, the stepper's
+// BDF2 history, the adaptive step and the random numbers (source, reservoir).
+TEST(Simulation, CheckpointContinuesBitForBit) {
+  for (bool adaptive : {false, true}) {
+    Disc disc(true, adaptive ? TimeScheme::Bdf2 : TimeScheme::Euler);
+    disc.options.source_rate = 0.5;
+    disc.options.velocity = Vec3(0.05, 0.0, 0.0);
+    disc.options.time_control.dt_min = 0.01 * disc.pp.dt_explicit;
+    const double dt = disc.pp.dt_explicit;
+    auto step = [&](Simulation& s) { return adaptive ? s.advance_adaptive(1e9) : s.advance(dt); };
+    auto a = disc.make();
+    a->start(disc.cloud(50, 11));
+    if (adaptive) a->set_next_dt(dt);
+    for (int k = 0; k < 3; ++k) step(*a);
+    const auto file = temp_file("ckpt");
+    a->save_checkpoint(file, "caller's data");
+    for (int k = 0; k < 3; ++k) step(*a);
+
+    auto b = disc.make();
+    std::string extra;
+    b->load_checkpoint(file, &extra);
+    EXPECT_EQ(extra, "caller's data");
+    EXPECT_EQ(b->step_count(), 3);
+    for (int k = 0; k < 3; ++k) step(*b);
+    EXPECT_TRUE(same_state(a->particles(), b->particles())) << (adaptive ? "adaptive BDF2" : "fixed Euler");
+    EXPECT_EQ(a->time(), b->time());
+    EXPECT_EQ(a->ledger().inserted, b->ledger().inserted);
+    EXPECT_EQ(a->ledger().source_inserted, b->ledger().source_inserted);
+    EXPECT_EQ(a->totals().evaluations, b->totals().evaluations);
+    EXPECT_EQ(a->projection().reservoir_carry(0, 0), b->projection().reservoir_carry(0, 0));
+    EXPECT_EQ(a->next_dt(), b->next_dt());
+    std::filesystem::remove(file);
+  }
+}
+
+// A damaged or foreign checkpoint is refused with one line and changes nothing.
+TEST(Simulation, BadCheckpointIsRefusedAndStateKept) {
+  Disc disc(false);
+  auto a = disc.make();
+  a->start(disc.cloud(20, 13));
+  a->advance(disc.pp.dt_explicit);
+  const auto file = temp_file("bad");
+  a->save_checkpoint(file);
+  std::string bytes;
+  {
+    std::ifstream f(file, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(f), {});
+  }
+  auto b = disc.make();
+  b->start(disc.cloud(10, 17));
+  const ParticleSet before = b->particles();
+  auto expect_refused = [&](const std::string& content, const std::string& why) {
+    {
+      std::ofstream f(file, std::ios::binary | std::ios::trunc);
+      f << content;
+    }
+    try {
+      b->load_checkpoint(file);
+      ADD_FAILURE() << "accepted: " << why;
+    } catch (const InvalidArgument& e) {
+      const std::string msg = e.what();
+      EXPECT_NE(msg.find("checkpoint"), std::string::npos) << msg;
+      EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+    }
+    EXPECT_TRUE(same_state(b->particles(), before)) << why;
+    EXPECT_EQ(b->step_count(), 0) << why;
+  };
+  std::string flipped = bytes;
+  flipped[bytes.size() / 2] ^= 0x10;
+  expect_refused(flipped, "one flipped bit");
+  expect_refused(bytes.substr(0, bytes.size() - 9), "truncated");
+  expect_refused("not a checkpoint at all", "foreign file");
+  // The same file into a simulation of another stepper.
+  Disc other(false);
+  other.options.stepper = StepperKind::Explicit;
+  auto c = other.make();
+  {
+    std::ofstream f(file, std::ios::binary | std::ios::trunc);
+    f << bytes;
+  }
+  EXPECT_THROW(c->load_checkpoint(file), InvalidArgument);
+  std::filesystem::remove(file);
+}
+
+// Setup errors say which part failed.
+TEST(Simulation, SetupErrorsNameTheirStage) {
+  SimulationOptions o;
+  o.particle_mass = 0.01;
+  o.width_s = 0.2;  // neighbour-list radius ~1.4: a periodic box of side 1 cannot hold two
+  try {
+    Simulation sim(make_periodic_box(2, Vec3::Zero(), Vec3(1.0, 1.0, 0.0)), {}, o);
+    ADD_FAILURE() << "accepted a periodic box smaller than two list radii";
+  } catch (const SimulationSetupError& e) {
+    EXPECT_EQ(e.stage(), SimulationSetupError::Stage::Periodic);
+  }
+  o.width_s = 0.0;
+  EXPECT_THROW(Simulation(make_ball(2, Vec3::Zero(), 1.0), {}, o), InvalidArgument);
+  o.width_s = 0.05;
+  EXPECT_THROW(Simulation(make_ball(2, Vec3::Zero(), 1.0), {{3, PatchKind::Dirichlet, 1.0}}, o), InvalidArgument);
+  Simulation ok(make_ball(2, Vec3::Zero(), 1.0), {}, o);
+  EXPECT_THROW(ok.advance(0.1), std::logic_error) << "no start()";
+}
