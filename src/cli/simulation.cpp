@@ -22,6 +22,7 @@
 #include "otfp/mass_measure.hpp"
 #include "otfp/neighbor_list.hpp"
 #include "otfp/parameters.hpp"
+#include "otfp/simulation.hpp"
 #include "otfp/stepper.hpp"
 #include "otfp/time_step_control.hpp"
 #include "otfp_app/writers.hpp"
@@ -149,16 +150,7 @@ double time_discrete_rate(const std::string& scheme, double lambda, double dt) {
 // Everything that changes while running.
 struct Simulation::State {
   detail::BuiltDomain built;
-  std::unique_ptr<BoundaryProjection> projection;
-  std::unique_ptr<ImplicitStepper> implicit;
-  std::unique_ptr<ExplicitStepper> explicit_stepper;
-  Periodicity periodicity;
-  std::vector<char> is_dirichlet;  // by patch id
-  std::vector<MirrorWallPtr> walls;  // walls with image blobs; particles beyond them are reflected back
-  // The step being projected: Neumann data is handed to the projection as its
-  // average over this step, so that windows [t_start, t_end) that end inside
-  // a step still give the exact integral of f (the 2023 injection stops at T0).
-  std::shared_ptr<std::pair<double, double>> step_window = std::make_shared<std::pair<double, double>>(0.0, 0.0);
+  std::unique_ptr<otfp::Simulation> sim;  // Algorithm 1
 };
 
 Simulation::~Simulation() = default;
@@ -354,169 +346,114 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
                         "required for reference = \"crank_slab\" unless the domain is a box with one Dirichlet face");
   }
 
-  // Boundary projection, barrier, stepper.
-  std::vector<PatchCondition> conditions;
-  st.is_dirichlet.assign(patches_.size(), 0);
+  // The library object: projection, barrier, walls and stepper (Algorithm 1).
+  std::vector<ConstantBoundaryData> data;
   for (PatchInfo& p : patches_) {
     if (p.kind == "no_flux") continue;
-    PatchCondition pc;
-    pc.patch = p.id;
-    pc.data_is_constant = true;
-    if (p.kind == "dirichlet") {
-      pc.kind = PatchKind::Dirichlet;
-      const double g = p.value;
-      pc.data = [g](const Vec3&, double) { return g; };
-      st.is_dirichlet[static_cast<std::size_t>(p.id)] = 1;
-    } else {
-      pc.kind = PatchKind::Neumann;
-      const double f = p.value, a = p.t_start, b = p.t_end.value_or(std::numeric_limits<double>::infinity());
-      const auto window = st.step_window;
-      pc.data = [f, a, b, window](const Vec3&, double) {
-        const double t0 = window->first, t1 = window->second;
-        return t1 > t0 ? f * overlap(t0, t1, a, b) / (t1 - t0) : 0.0;
-      };
+    ConstantBoundaryData bd;
+    bd.patch = p.id;
+    bd.kind = p.kind == "dirichlet" ? PatchKind::Dirichlet : PatchKind::Neumann;
+    bd.value = p.value;
+    if (bd.kind == PatchKind::Neumann) {
+      bd.t_start = p.t_start;
+      bd.t_end = p.t_end.value_or(std::numeric_limits<double>::infinity());
     }
-    p.condition = static_cast<int>(conditions.size());
-    conditions.push_back(std::move(pc));
+    p.condition = static_cast<int>(data.size());
+    data.push_back(bd);
   }
-  // Reservoir treatment (docs/boundaries.md): Omega_ext = Omega extended by a
-  // band of width w = reservoir_width * r_c over the Dirichlet patches.
   const TreatmentSection& tr = c.treatment;
-  std::vector<int> dirichlet_ids;
-  for (const PatchInfo& p : patches_)
-    if (p.kind == "dirichlet") dirichlet_ids.push_back(p.id);
-  DomainPtr reservoir_domain;
-  if (tr.dirichlet == "reservoir" && !dirichlet_ids.empty()) {
-    d.reservoir_width = tr.reservoir_width * cutoff_radius(d.width_s, c.solver.kernel_tolerance);
-    try {
-      reservoir_domain = domain_->extended(dirichlet_ids, d.reservoir_width);
-    } catch (const InvalidArgument& e) {
-      throw ConfigError("treatment.dirichlet", "\"reservoir\"", std::string("not available here: ") + e.what());
-    }
-    d.reservoir_sublayers = tr.reservoir_sublayers > 0
-                                ? static_cast<int>(tr.reservoir_sublayers)
-                                : std::max(1, static_cast<int>(std::lround(2.0 * d.reservoir_width / d.dr)));
-  }
-  ProjectionOptions po;
+  SimulationOptions so;
+  so.particle_mass = d.particle_mass;
+  so.width_s = d.width_s;
+  so.bounded = !free_space_;
+  so.barrier_stiffness = d.barrier_C;
+  so.no_flux = no_flux_treatment_from_string(tr.no_flux);
+  so.seed = static_cast<std::uint64_t>(c.run.seed);
+  ProjectionOptions& po = so.projection;
   po.layer_b = d.layer_b;
   po.neumann_outflow = tr.neumann_outflow == "nearest" ? NeumannOutflow::NearestParticles : NeumannOutflow::Layer;
   po.absorb_exterior = tr.dirichlet == "layer" && tr.stranded == "absorb";
-  if (reservoir_domain) {
+  po.dirichlet_target = pa.dirichlet_target == "paper_eq34" ? DirichletTarget::PaperEq34 : DirichletTarget::CellIntegral;
+  if (tr.dirichlet == "reservoir" && any_dirichlet) {
+    // Band of width w = reservoir_width * r_c, round(2 w / dr) sublayers unless given.
+    d.reservoir_width = tr.reservoir_width * cutoff_radius(d.width_s, c.solver.kernel_tolerance);
+    d.reservoir_sublayers = tr.reservoir_sublayers > 0
+                                ? static_cast<int>(tr.reservoir_sublayers)
+                                : std::max(1, static_cast<int>(std::lround(2.0 * d.reservoir_width / d.dr)));
     po.dirichlet_mode = DirichletMode::Reservoir;
-    po.reservoir_domain = reservoir_domain;
     po.reservoir_thickness = d.reservoir_width;
     po.reservoir_sublayers = d.reservoir_sublayers;
     po.reservoir_profile = tr.reservoir_profile == "odd" ? ReservoirProfile::Odd : ReservoirProfile::Uniform;
   }
-  po.dirichlet_target = pa.dirichlet_target == "paper_eq34" ? DirichletTarget::PaperEq34 : DirichletTarget::CellIntegral;
-  try {
-    po.validate();
-    st.projection = std::make_unique<BoundaryProjection>(domain_, std::move(conditions), po, d.particle_mass, d.width_s);
-  } catch (const InvalidArgument& e) {
-    // The odd profile mirrors the band inside Omega: a band deeper than the domain has no mirror.
-    if (reservoir_domain && std::string(e.what()).find("mirror image") != std::string::npos)
-      throw ConfigError("treatment.reservoir_width", fmt::format("{}", tr.reservoir_width),
-                        fmt::format("gives a band of {} that the odd profile cannot mirror inside Omega ({}); "
-                                    "raise particles.n_inf or lower the width",
-                                    d.reservoir_width, e.what()));
-    throw ConfigError("boundary", std::string("boundary: ") + e.what());
-  }
-
-  st.periodicity = domain_->is_periodic() ? Periodicity::from_domain(*domain_) : Periodicity::none(dim);
-  if (domain_->is_periodic()) {
-    // The neighbour list needs two list radii per period (minimum image); check it now, not at step 1.
-    const double radius = cutoff_radius(d.width_s, c.solver.kernel_tolerance) + c.solver.skin_factor * d.width_s;
-    for (int k = 0; k < dim; ++k) {
-      const double side = c.domain.hi[k] - c.domain.lo[k];
-      if (side < 2.0 * radius)
-        throw ConfigError("domain.hi", fmt::format("[{}, {}, {}]", c.domain.hi[0], c.domain.hi[1], c.domain.hi[2]),
-                          fmt::format("the periodic box side {} (axis {}) must be at least twice the neighbour-list "
-                                      "radius {}: enlarge the box or raise particles.n_inf",
-                                      side, "xyz"[k], radius));
-    }
-  }
-  Barrier barrier;
-  std::vector<MirrorWallPtr> walls;
-  if (!free_space_ && !domain_->is_periodic()) {
-    try {
-      const std::vector<int> inflated = st.projection->dirichlet_patches();
-      if (reservoir_domain) {
-        // The band's back faces are no-flux walls with image blobs (a band
-        // without them over-fills); the other walls are mirrored only with
-        // treatment.no_flux = "images".
-        barrier = Barrier(reservoir_domain, d.barrier_C);
-        d.barrier_domain = "Omega extended by the reservoir band over the Dirichlet patches";
-        std::vector<int> open;
-        if (tr.no_flux != "images")
-          for (const PatchInfo& p : patches_)
-            if (p.kind != "dirichlet") open.push_back(p.id);
-        walls = mirror_walls(*reservoir_domain, open);
-      } else {
-        if (c.domain.type == "box" && c.domain.subpatches.empty() && !inflated.empty()) {
-          // Omega' = Omega u B^ext is again a box: the box extended by b over its
-          // Dirichlet faces. Its distance is exact and continuous, whereas
-          // inflating by patch (Barrier's inflated_patches) jumps by up to b
-          // where the closest face changes next to a Dirichlet face.
-          Vec3 lo = c.domain.lo, hi = c.domain.hi;
-          for (int p : inflated) (p % 2 == 0 ? lo : hi)[p / 2] += (p % 2 == 0 ? -d.layer_b : d.layer_b);
-          barrier = Barrier(make_box(dim, lo, hi), d.barrier_C);
-          d.barrier_domain = "box extended by b over its Dirichlet faces";
-        } else {
-          barrier = Barrier(domain_, d.barrier_C, inflated, d.layer_b);
-          d.barrier_domain = inflated.empty() ? "Omega" : "Omega inflated by b over the Dirichlet patches";
-        }
-        if (tr.no_flux == "images") walls = mirror_walls(*domain_, inflated);
-      }
-    } catch (const InvalidArgument& e) {
-      throw ConfigError("treatment.no_flux", "\"" + tr.no_flux + "\"",
-                        std::string("walls: ") + e.what() + "; set treatment.no_flux = \"barrier\"");
-    }
-  } else if (tr.no_flux == "images" && !free_space_ && domain_->is_periodic()) {
-    // A periodic box has no walls: nothing to mirror.
-  }
-  d.mirrored_walls = static_cast<int>(walls.size());
-  st.walls = walls;
+  so.fill_reservoir_at_start = true;
   const SolverSection& s = c.solver;
   NeighborOptions nb;
   nb.kernel_tolerance = s.kernel_tolerance;
   nb.skin = -1.0;
   nb.skin_factor = s.skin_factor;
+  so.stepper = stepper_kind_from_string(s.stepper);
+  if (so.stepper == StepperKind::Implicit) {
+    ImplicitOptions& io = so.implicit;
+    io.minimizer.backend = backend_from_string(s.backend);
+    io.minimizer.algorithm = algorithm_from_string(s.algorithm);
+    io.minimizer.max_iterations = static_cast<int>(s.max_iterations);
+    io.minimizer.max_evaluations = static_cast<int>(s.max_evaluations);
+    io.minimizer.lbfgs_memory = static_cast<int>(s.lbfgs_memory);
+    io.displacement_tolerance = s.displacement_tolerance;
+    io.relative_tolerance = s.relative_tolerance;
+    io.width_mode = width_mode_from_string(s.width_mode);
+    io.width_metric = s.width_metric == "exact" ? WidthMetric::ExactGaussian : WidthMetric::AsPrinted;
+    io.time_scheme = time_scheme_from_string(s.time_scheme);
+    io.predictor = predictor_from_string(s.predictor);
+    io.error_smoothing = s.error_smoothing;
+    io.kappa = c.physics.kappa;
+    io.rho_ref = c.physics.rho_ref;
+    io.neighbor = nb;
+    io.max_halvings = static_cast<int>(s.max_halvings);
+    io.energy_tolerance = s.energy_tolerance;
+  } else {
+    ExplicitOptions& eo = so.explicit_options;
+    eo.scheme = explicit_scheme_from_string(s.explicit_scheme);
+    eo.kappa = c.physics.kappa;
+    eo.rho_ref = c.physics.rho_ref;
+    eo.neighbor = nb;
+  }
+  so.velocity = c.physics.velocity;
+  so.source_rate = c.physics.source_rate;
+  // Adaptive dt (run.dt_mode): the controller's bounds; dt_max is at least dt_min.
+  TimeStepControlOptions& tco = so.time_control;
+  tco.tolerance = c.run.time_tolerance;
+  tco.dt_min = c.run.dt_min ? *c.run.dt_min : 1e-3 * d.dt;
+  tco.dt_max = std::max(c.run.dt_max ? *c.run.dt_max : c.run.t_end, tco.dt_min);
   try {
-    if (s.stepper == "implicit") {
-      ImplicitOptions io;
-      io.minimizer.backend = backend_from_string(s.backend);
-      io.minimizer.algorithm = algorithm_from_string(s.algorithm);
-      io.minimizer.max_iterations = static_cast<int>(s.max_iterations);
-      io.minimizer.max_evaluations = static_cast<int>(s.max_evaluations);
-      io.minimizer.lbfgs_memory = static_cast<int>(s.lbfgs_memory);
-      io.displacement_tolerance = s.displacement_tolerance;
-      io.relative_tolerance = s.relative_tolerance;
-      io.width_mode = width_mode_from_string(s.width_mode);
-      io.width_metric = s.width_metric == "exact" ? WidthMetric::ExactGaussian : WidthMetric::AsPrinted;
-      io.time_scheme = time_scheme_from_string(s.time_scheme);
-      io.predictor = predictor_from_string(s.predictor);
-      io.error_smoothing = s.error_smoothing;
-      io.kappa = c.physics.kappa;
-      io.rho_ref = c.physics.rho_ref;
-      io.neighbor = nb;
-      io.max_halvings = static_cast<int>(s.max_halvings);
-      io.energy_tolerance = s.energy_tolerance;
-      io.validate();
-      st.implicit = std::make_unique<ImplicitStepper>(dim, io, barrier, st.periodicity);
-      if (!walls.empty()) st.implicit->functional().set_images(WallImages(walls));
-    } else {
-      ExplicitOptions eo;
-      eo.scheme = explicit_scheme_from_string(s.explicit_scheme);
-      eo.kappa = c.physics.kappa;
-      eo.rho_ref = c.physics.rho_ref;
-      eo.neighbor = nb;
-      eo.validate();
-      st.explicit_stepper = std::make_unique<ExplicitStepper>(dim, eo, barrier, st.periodicity);
-      if (!walls.empty()) st.explicit_stepper->functional().set_images(WallImages(walls));
+    st.sim = std::make_unique<otfp::Simulation>(domain_, std::move(data), so);
+  } catch (const SimulationSetupError& e) {
+    using Stage = SimulationSetupError::Stage;
+    switch (e.stage()) {
+      case Stage::Reservoir:
+        throw ConfigError("treatment.dirichlet", "\"reservoir\"", std::string("not available here: ") + e.what());
+      case Stage::ReservoirMirror:
+        throw ConfigError("treatment.reservoir_width", fmt::format("{}", tr.reservoir_width),
+                          fmt::format("gives a band of {} that the odd profile cannot mirror inside Omega ({}); "
+                                      "raise particles.n_inf or lower the width",
+                                      d.reservoir_width, e.what()));
+      case Stage::Projection:
+        throw ConfigError("boundary", std::string("boundary: ") + e.what());
+      case Stage::Periodic:
+        throw ConfigError("domain.hi", fmt::format("[{}, {}, {}]", c.domain.hi[0], c.domain.hi[1], c.domain.hi[2]),
+                          std::string(e.what()) + ": enlarge the box or raise particles.n_inf");
+      case Stage::Walls:
+        throw ConfigError("treatment.no_flux", "\"" + tr.no_flux + "\"",
+                          std::string("walls: ") + e.what() + "; set treatment.no_flux = \"barrier\"");
+      case Stage::Stepper:
+        break;
     }
+    throw ConfigError("solver", std::string("solver: ") + e.what());
   } catch (const InvalidArgument& e) {
     throw ConfigError("solver", std::string("solver: ") + e.what());
   }
+  d.barrier_domain = st.sim->barrier_domain_description();
+  d.mirrored_walls = st.sim->mirrored_walls();
 }
 
 nlohmann::json Simulation::describe() const {
@@ -672,7 +609,8 @@ RunResult Simulation::run(const RunOptions& options) {
 
   RunResult result;
   Rng rng(static_cast<std::uint64_t>(c.run.seed));
-  ParticleSet particles(dim);
+  otfp::Simulation& sim = *st.sim;
+  const ParticleSet& particles = sim.particles();
   const std::filesystem::path& out = options.out_dir;
   const bool write = !out.empty();
   AppendFile series_file, timing_file;
@@ -727,25 +665,18 @@ RunResult Simulation::run(const RunOptions& options) {
   for (const std::string& col : ref_columns) header += "," + col;
   header += "\n";
 
-  // Ledger totals.
-  long source_inserted = 0, source_removed = 0;
-  double source_mass_in = 0.0, source_mass_out = 0.0;
-  std::int64_t inserted_total = 0, removed_total = 0;
-  std::int64_t reflected_total = 0;  // particles put back across mirrored walls
-  double mass_in_total = 0.0, mass_out_total = 0.0;
   std::int64_t n0 = 0;
   double M0 = 0.0;
-  // Trapezoid L1 sums (the series carries the paper's rectangle sums).
-  double trap_mass_inside = 0.0, trap_mass_layer = 0.0, trap_j_inside = 0.0, trap_j_layer = 0.0;
+  // (46): the rectangle sums go into the series, the trapezoid sums into summary.json.
+  L1Norms l1;
+  StateMeasures prev_measures;
   double S0 = 0.0, A0 = 0.0;  // second moment and mode amplitude at t = 0
   std::vector<std::pair<double, double>> mode_log;  // (t, log A) while A > 0.05 A0
   bool mode_fit_open = true;
-  std::int64_t total_iterations = 0, total_evaluations = 0, total_rejected = 0, total_halvings = 0;
-  // Adaptive dt: the step being taken (fixed: d.dt, as (46) is summed), tries
-  // rejected by the error test before it, and run totals.
-  double step_dt = d.dt, dt_used_min = std::numeric_limits<double>::infinity(), dt_used_max = 0.0;
-  std::int64_t step_rejections = 0, total_step_rejections = 0, total_forced = 0;
-  double total_step_seconds = 0.0, total_solver_seconds = 0.0, total_list_seconds = 0.0;
+  // The step being taken (fixed: d.dt, as (46) is summed; adaptive: its own
+  // length) and the tries the error test rejected before it.
+  double step_dt = d.dt;
+  std::int64_t step_rejections = 0;
   StepRecord prev;
   std::vector<std::int32_t> region;
 
@@ -755,43 +686,24 @@ RunResult Simulation::run(const RunOptions& options) {
     r.t = t;
     r.dt = step == 0 ? 0.0 : step_dt;
     const std::size_t n = particles.size();
-    region.assign(n, kElsewhere);
-    // The buffer outside a Dirichlet face: B^ext (width b) or the reservoir band (width w).
-    const double buffer_width = d.reservoir_width > 0.0 ? d.reservoir_width : d.layer_b;
-    double age_sum = 0.0;
-    for (std::size_t p = 0; p < n; ++p) {
-      const Vec3& x = particles.positions()[p];
-      const double m = particles.masses()[p];
-      const BoundaryQuery q = domain_->query(x);
-      const double r2 = (x - d.center).squaredNorm();
-      r.mass_total += m;
-      r.polar_inertia_total += m * r2;
-      if (q.signed_distance <= 0.0) {
-        region[p] = kInside;
-        ++r.n_inside;
-        r.mass_inside += m;
-        r.polar_inertia += m * r2;
-      } else if (q.patch >= 0 && st.is_dirichlet[static_cast<std::size_t>(q.patch)] &&
-                 q.signed_distance <= buffer_width) {
-        region[p] = kBuffer;
-        ++r.n_buffer;
-      } else {
-        ++r.n_outside;
-      }
-      if (region[p] != kElsewhere) {
-        r.mass_with_layer += m;
-        r.polar_inertia_with_layer += m * r2;
-      }
-      const double age = t - particles.birth_times()[p];
-      age_sum += age;
-      r.max_age = std::max(r.max_age, age);
-    }
-    r.n_particles = static_cast<std::int64_t>(n);
-    r.mean_age = n ? age_sum / static_cast<double>(n) : 0.0;
+    // (43)-(44) inside Omega and with the buffer outside the Dirichlet faces.
+    const StateMeasures ms = sim.measure(d.center, &region);
+    r.n_particles = ms.n_particles;
+    r.n_inside = ms.n_inside;
+    r.n_buffer = ms.n_buffer;
+    r.n_outside = ms.n_outside;
+    r.mass_total = ms.mass_total;
+    r.mass_inside = ms.mass_inside;
+    r.mass_with_layer = ms.mass_with_layer;
+    r.polar_inertia = ms.polar_inertia;
+    r.polar_inertia_with_layer = ms.polar_inertia_with_layer;
+    r.polar_inertia_total = ms.polar_inertia_total;
+    r.mean_age = ms.mean_age;
+    r.max_age = ms.max_age;
     r.inserted = ins;
     r.removed = rem;
-    r.inserted_total = inserted_total;
-    r.removed_total = removed_total;
+    r.inserted_total = sim.ledger().inserted;
+    r.removed_total = sim.ledger().removed;
     if (sum) {
       r.energy = sum->f_after;
       r.transport = sum->parts_after.transport;
@@ -809,17 +721,13 @@ RunResult Simulation::run(const RunOptions& options) {
       r.list_seconds = sum->list_seconds;
     }
     // (46a)-(46b) as printed: sum over k = 0..K of the value at t_k times dt, all particles.
-    r.l1_mass = prev.l1_mass + r.mass_total * step_dt;
-    r.l1_polar_inertia = prev.l1_polar_inertia + r.polar_inertia_total * step_dt;
-    if (step == 0) {
-      r.l1_mass = r.mass_total * step_dt;
-      r.l1_polar_inertia = r.polar_inertia_total * step_dt;
-    } else {
-      trap_mass_inside += 0.5 * (prev.mass_inside + r.mass_inside) * step_dt;
-      trap_mass_layer += 0.5 * (prev.mass_with_layer + r.mass_with_layer) * step_dt;
-      trap_j_inside += 0.5 * (prev.polar_inertia + r.polar_inertia) * step_dt;
-      trap_j_layer += 0.5 * (prev.polar_inertia_with_layer + r.polar_inertia_with_layer) * step_dt;
-    }
+    if (step == 0)
+      l1.add_first(ms, step_dt);
+    else
+      l1.add(prev_measures, ms, step_dt);
+    prev_measures = ms;
+    r.l1_mass = l1.mass_rectangle;
+    r.l1_polar_inertia = l1.polar_inertia_rectangle;
     r.mass_ratio = r.mass_inside / d.M_inf;
     if (d.J_inf) r.polar_inertia_ratio = r.polar_inertia / *d.J_inf;
     r.mass_blob = blob_mass_in_domain(*domain_, particles, blob_options);
@@ -975,7 +883,7 @@ RunResult Simulation::run(const RunOptions& options) {
     for (const PatchInfo& p : patches_) {
       nlohmann::json j = {{"patch", p.name}, {"kind", p.kind}};
       PatchLedger l;
-      if (p.condition >= 0) l = st.projection->ledger()[static_cast<std::size_t>(p.condition)];
+      if (p.condition >= 0) l = sim.projection().ledger()[static_cast<std::size_t>(p.condition)];
       j["inserted"] = l.inserted;
       j["removed"] = l.removed;
       j["mass_inserted"] = l.mass_inserted;
@@ -987,17 +895,18 @@ RunResult Simulation::run(const RunOptions& options) {
       j["deficit"] = l.deficit;
       patches.push_back(j);
     }
+    const SimulationLedger& g = sim.ledger();
     return nlohmann::json{{"initial_particles", n0},
-                          {"reflected", reflected_total},
+                          {"reflected", g.reflected},
                           {"initial_mass", M0},
-                          {"inserted", inserted_total},
-                          {"removed", removed_total},
-                          {"mass_inserted", mass_in_total},
-                          {"mass_removed", mass_out_total},
-                          {"source", {{"inserted", source_inserted},
-                                      {"removed", source_removed},
-                                      {"mass_inserted", source_mass_in},
-                                      {"mass_removed", source_mass_out}}},
+                          {"inserted", g.inserted},
+                          {"removed", g.removed},
+                          {"mass_inserted", g.mass_inserted},
+                          {"mass_removed", g.mass_removed},
+                          {"source", {{"inserted", g.source_inserted},
+                                      {"removed", g.source_removed},
+                                      {"mass_inserted", g.source_mass_inserted},
+                                      {"mass_removed", g.source_mass_removed}}},
                           {"patches", patches}};
   };
 
@@ -1033,10 +942,10 @@ RunResult Simulation::run(const RunOptions& options) {
                {"mass_rectangle", last.l1_mass},
                {"polar_inertia_rectangle", last.l1_polar_inertia},
                {"rule_trapezoid", "trapezoid rule over [0, t]"},
-               {"mass_inside_trapezoid", trap_mass_inside},
-               {"mass_with_layer_trapezoid", trap_mass_layer},
-               {"polar_inertia_inside_trapezoid", trap_j_inside},
-               {"polar_inertia_with_layer_trapezoid", trap_j_layer}};
+               {"mass_inside_trapezoid", l1.mass_inside_trapezoid},
+               {"mass_with_layer_trapezoid", l1.mass_with_layer_trapezoid},
+               {"polar_inertia_inside_trapezoid", l1.polar_inertia_inside_trapezoid},
+               {"polar_inertia_with_layer_trapezoid", l1.polar_inertia_with_layer_trapezoid}};
     if (ref != "none") {
       nlohmann::json q = nlohmann::json::array();
       for (const ErrorStats& e : ref_stats) q.push_back(e.json());
@@ -1080,20 +989,21 @@ RunResult Simulation::run(const RunOptions& options) {
       }
     }
     j["ledger"] = ledger_json();
-    j["solver_totals"] = {{"iterations", total_iterations},
-                          {"evaluations", total_evaluations},
-                          {"rejected_solves", total_rejected},
-                          {"halvings", total_halvings},
-                          {"error_rejected_steps", total_step_rejections},
-                          {"steps_forced_at_dt_min", total_forced},
-                          {"dt_min_used", dt_used_max > 0.0 ? nlohmann::json(dt_used_min) : nlohmann::json(nullptr)},
-                          {"dt_max_used", dt_used_max > 0.0 ? nlohmann::json(dt_used_max) : nlohmann::json(nullptr)}};
+    const SimulationTotals& tt = sim.totals();
+    j["solver_totals"] = {{"iterations", tt.iterations},
+                          {"evaluations", tt.evaluations},
+                          {"rejected_solves", tt.rejected_solves},
+                          {"halvings", tt.halvings},
+                          {"error_rejected_steps", tt.error_rejected_steps},
+                          {"steps_forced_at_dt_min", tt.steps_forced_at_dt_min},
+                          {"dt_min_used", tt.dt_max_used > 0.0 ? nlohmann::json(tt.dt_min_used) : nlohmann::json(nullptr)},
+                          {"dt_max_used", tt.dt_max_used > 0.0 ? nlohmann::json(tt.dt_max_used) : nlohmann::json(nullptr)}};
     // Where the diffusion steps spent their time (wall clock, not reproducible).
-    j["profile"] = {{"diffusion_step_seconds", total_step_seconds},
-                    {"solver_seconds", total_solver_seconds},
-                    {"neighbor_list_seconds", total_list_seconds},
-                    {"evaluation_seconds", std::max(0.0, total_step_seconds - total_solver_seconds - total_list_seconds)},
-                    {"other_seconds", std::max(0.0, wall() - total_step_seconds)},
+    j["profile"] = {{"diffusion_step_seconds", tt.step_seconds},
+                    {"solver_seconds", tt.solver_seconds},
+                    {"neighbor_list_seconds", tt.list_seconds},
+                    {"evaluation_seconds", std::max(0.0, tt.step_seconds - tt.solver_seconds - tt.list_seconds)},
+                    {"other_seconds", std::max(0.0, wall() - tt.step_seconds)},
                     {"rule", "evaluation = diffusion step - solver - neighbour list (pair sweeps, barrier, sorting); "
                              "other = wall - diffusion steps (projection, advection, source, diagnostics, output)"}};
     return j;
@@ -1111,7 +1021,7 @@ RunResult Simulation::run(const RunOptions& options) {
     const double eta = c.run.dt_mode == "adaptive" ? (r.t > 0.0 ? el / r.t * (c.run.t_end - r.t) : 0.0)
                        : r.step > 0 ? el / static_cast<double>(r.step) * static_cast<double>(d.steps_to_run - r.step)
                                     : 0.0;
-    const double its = r.step > 0 ? static_cast<double>(total_iterations) / static_cast<double>(r.step) : 0.0;
+    const double its = r.step > 0 ? static_cast<double>(sim.totals().iterations) / static_cast<double>(r.step) : 0.0;
     std::fprintf(stderr, "\rstep %lld/%s  t=%.4g  n=%lld  M/M_inf=%.4f  it/step=%.1f  ETA %s   ",
                  static_cast<long long>(r.step),
                  c.run.dt_mode == "adaptive" ? "?" : std::to_string(d.steps_to_run).c_str(), r.t,
@@ -1123,6 +1033,7 @@ RunResult Simulation::run(const RunOptions& options) {
   StepRecord last;
   try {
     // Initial fill.
+    ParticleSet fill(dim);
     const double m_p = d.particle_mass;
     for (std::int64_t i = 0; i < d.fill_count; ++i) {
       Vec3 x;
@@ -1151,10 +1062,10 @@ RunResult Simulation::run(const RunOptions& options) {
       } else {
         x = domain_->sample_interior(rng);
       }
-      particles.add(x, d.width_s, m_p, 0.0);
+      fill.add(x, d.width_s, m_p, 0.0);
     }
-    n0 = static_cast<std::int64_t>(particles.size());
-    M0 = particles.total_mass();
+    n0 = static_cast<std::int64_t>(fill.size());
+    M0 = fill.total_mass();
 
     if (write) {
       std::filesystem::create_directories(out);
@@ -1177,168 +1088,32 @@ RunResult Simulation::run(const RunOptions& options) {
       show_progress(r, final_row);
     };
 
-    // The reservoir is the bath outside the Dirichlet face: it holds density g
-    // from t = 0, so it is filled before the first step (a zero-length
-    // projection: Neumann patches move nothing). Otherwise nothing can cross
-    // the face during step 1 and M lags Crank by a whole step. Counted as
-    // insertions of step 0. The papers' layer starts empty, as in Algorithm 1.
-    std::int64_t ins0 = 0, rem0 = 0;
-    if (c.treatment.dirichlet == "reservoir" && !st.projection->dirichlet_patches().empty()) {
-      *st.step_window = {0.0, 0.0};
-      const PatchLedger pl = st.projection->apply(particles, 0.0, 0.0, rng);
-      ins0 = pl.inserted;
-      rem0 = pl.removed;
-      mass_in_total += pl.mass_inserted;
-      mass_out_total += pl.mass_removed;
-      inserted_total += ins0;
-      removed_total += rem0;
-    }
-    emit(diagnostics(0, 0.0, nullptr, ins0, rem0), false);
-
-    const bool advect_on = c.physics.velocity.head(dim).squaredNorm() > 0.0;
-    const Vec3 u = c.physics.velocity;
-    const VelocityField velocity = [u](const Vec3&, double) { return u; };
-    const double s_rate = c.physics.source_rate;
-    const SourceField source = [s_rate](const Vec3&, double) { return s_rate; };
+    // Algorithm 1 runs in the library; the reservoir (if any) is filled
+    // before the first step, counted as step 0's insertions.
+    sim.start(std::move(fill), rng, 0.0);
+    emit(diagnostics(0, 0.0, nullptr, sim.initial_step().inserted, sim.initial_step().removed), false);
 
     // Fixed dt: step k covers [(k-1) dt, k dt]. Adaptive dt (run.dt_mode):
-    // the controller proposes each step from the last one's error estimate;
-    // a step whose estimate exceeds run.time_tolerance is undone (advection
-    // and source included: particles, random numbers and ledger restored)
-    // and retried with the smaller step the controller gives.
+    // the library's controller proposes each step and undoes the tries its
+    // error test rejects.
     const bool adaptive = c.run.dt_mode == "adaptive";
-    TimeStepControlOptions tco;
-    tco.tolerance = c.run.time_tolerance;
-    tco.dt_min = c.run.dt_min ? *c.run.dt_min : 1e-3 * d.dt;
-    tco.dt_max = c.run.dt_max ? *c.run.dt_max : c.run.t_end;
-    const TimeStepController controller((tco.dt_max = std::max(tco.dt_max, tco.dt_min), tco));
-    double t_now = 0.0, dt_next = std::min(std::max(d.dt, tco.dt_min), tco.dt_max);
-    const std::int64_t max_rejections = 1000;  // per step: the controller shrinks by >= 5x each time
-    // The last step ends on t_end exactly; one a little longer than proposed
-    // beats a sliver of a step after it.
-    auto step_end = [&](double t0, double h) {
-      return t0 + h >= c.run.t_end * (1.0 - 1e-12) - 0.1 * h ? c.run.t_end : t0 + h;
-    };
+    if (adaptive) {
+      const TimeStepControlOptions& tco = sim.options().time_control;
+      sim.set_next_dt(std::min(std::max(d.dt, tco.dt_min), tco.dt_max));
+    }
     for (std::int64_t k = 1;; ++k) {
-      double t0, t1;
+      SimulationStep step;
       if (!adaptive) {
         if (k > d.steps_to_run) break;
-        t0 = static_cast<double>(k - 1) * d.dt;
-        t1 = k == d.n_steps ? c.run.t_end : static_cast<double>(k) * d.dt;
+        step = sim.advance_to(k == d.n_steps ? c.run.t_end : static_cast<double>(k) * d.dt);
       } else {
-        if (t_now >= c.run.t_end || (c.run.max_steps > 0 && k > c.run.max_steps)) break;
-        t0 = t_now;
-        t1 = step_end(t0, dt_next);
+        if (sim.time() >= c.run.t_end || (c.run.max_steps > 0 && k > c.run.max_steps)) break;
+        step = sim.advance_adaptive(c.run.t_end);
       }
-      double h = t1 - t0;
-      long ins = 0, rem = 0;
-      StepSummary sum;
-      step_rejections = 0;
-      // Undo state for a rejected adaptive try.
-      std::optional<ParticleSet> saved;
-      std::optional<Rng> saved_rng;
-      const long saved_counts[2] = {source_inserted, source_removed};
-      const double saved_mass[4] = {source_mass_in, source_mass_out, mass_in_total, mass_out_total};
-      const bool undo_needed = adaptive && (advect_on || s_rate != 0.0);
-      for (;;) {
-        if (undo_needed) {
-          saved = particles;
-          saved_rng = rng;
-        }
-        ins = rem = 0;
-        // Algorithm 1, line 2: advection.
-        if (advect_on) {
-          advect(particles, velocity, t0, h, 1);
-          for (Vec3& x : particles.positions()) x = domain_->wrap(x);
-        }
-        // Line 3: source.
-        if (s_rate != 0.0) {
-          const SourceResult sr = apply_source(particles, source, t0, h, rng);
-          for (Vec3& x : particles.positions()) x = domain_->wrap(x);
-          source_inserted += sr.inserted;
-          source_removed += sr.removed;
-          source_mass_in += sr.mass_inserted;
-          source_mass_out += sr.mass_removed;
-          ins += sr.inserted;
-          rem += sr.removed;
-          mass_in_total += sr.mass_inserted;
-          mass_out_total += sr.mass_removed;
-        }
-        // Line 4: diffusion. Nothing to move in an empty set.
-        if (particles.empty()) {
-          sum = StepSummary{};
-          sum.accepted = true;
-          sum.dt = h;
-        } else if (st.implicit) {
-          sum = st.implicit->step(particles, h, adaptive ? controller.error_limit(h) : kNoErrorLimit);
-        } else {
-          sum = st.explicit_stepper->step(particles, h);
-        }
-        total_iterations += sum.iterations;
-        total_evaluations += sum.evaluations;
-        total_rejected += sum.rejected_solves;
-        total_halvings += sum.halvings;
-        total_step_seconds += sum.wall_seconds;
-        total_solver_seconds += sum.solver_seconds;
-        total_list_seconds += sum.list_seconds;
-        if (!adaptive) break;
-        const TimeStepDecision dec = controller.decide(h, sum.error_estimate, sum.error_order);
-        dt_next = dec.dt_next;
-        if (sum.accepted) {
-          if (dec.forced) ++total_forced;
-          break;
-        }
-        if (!sum.error_rejected) break;  // a failed solve: reported below
-        ++step_rejections;
-        ++total_step_rejections;
-        if (step_rejections > max_rejections)
-          throw RunError(fmt::format("step {} (t = {}): {} tries rejected by the error test", k, t0, step_rejections));
-        if (undo_needed) {
-          particles = std::move(*saved);
-          rng = *saved_rng;
-          source_inserted = saved_counts[0];
-          source_removed = saved_counts[1];
-          source_mass_in = saved_mass[0];
-          source_mass_out = saved_mass[1];
-          mass_in_total = saved_mass[2];
-          mass_out_total = saved_mass[3];
-        }
-        t1 = step_end(t0, dt_next);
-        h = t1 - t0;
-      }
-      if (!sum.accepted)
-        throw RunError(fmt::format("step {} (t = {} -> {}): diffusion step not accepted ({}; {} halvings): {}", k, t0,
-                                   t1, to_string(sum.reason), sum.halvings, sum.message));
-      step_dt = adaptive ? h : d.dt;
-      t_now = t1;
-      dt_used_min = std::min(dt_used_min, h);
-      dt_used_max = std::max(dt_used_max, h);
-      // Lines 5-23: projection onto the boundary conditions.
-      *st.step_window = {t0, t1};
-      const PatchLedger pl = st.projection->apply(particles, t0, h, rng);
-      // Mirrored walls: a particle that crossed one is reflected back (its
-      // image would push it further out); moved, not removed, so counted apart.
-      if (!st.walls.empty()) reflected_total += static_cast<std::int64_t>(reflect_inside(st.walls, particles.positions()));
-      ins += pl.inserted;
-      rem += pl.removed;
-      mass_in_total += pl.mass_inserted;
-      mass_out_total += pl.mass_removed;
-      inserted_total += ins;
-      removed_total += rem;
-
-      // Ledger: n(t) = n(0) + inserted - removed, and the same for the mass.
-      const std::int64_t expect_n = n0 + inserted_total - removed_total;
-      if (static_cast<std::int64_t>(particles.size()) != expect_n)
-        throw RunError(fmt::format("particle ledger violated at step {} (t = {}): n = {} but n(0) + inserted - removed "
-                                   "= {} + {} - {} = {}",
-                                   k, t1, particles.size(), n0, inserted_total, removed_total, expect_n));
-      const double mass_now = particles.total_mass();
-      const double mass_expect = M0 + mass_in_total - mass_out_total;
-      if (!(std::abs(mass_now - mass_expect) <= 1e-9 * (M0 + mass_in_total + m_p)))
-        throw RunError(fmt::format("mass ledger violated at step {} (t = {}): mass = {} but M(0) + inserted - removed "
-                                   "= {}",
-                                   k, t1, mass_now, mass_expect));
-      emit(diagnostics(k, t1, &sum, ins, rem), adaptive ? t1 >= c.run.t_end || k == c.run.max_steps : k == d.steps_to_run);
+      step_dt = adaptive ? step.dt() : d.dt;
+      step_rejections = step.error_rejections;
+      emit(diagnostics(k, step.t_end, &step.diffusion, static_cast<long>(step.inserted), static_cast<long>(step.removed)),
+           adaptive ? step.t_end >= c.run.t_end || k == c.run.max_steps : k == d.steps_to_run);
     }
     if (write) {
       // Final particles as CSV (widths for histograms, positions for profiles).
@@ -1358,21 +1133,15 @@ RunResult Simulation::run(const RunOptions& options) {
     result.error = e.what();
     result.exit_code = 1;
     if (progress) std::fputc('\n', stderr);
-    // The state the failing step started from (a rejected diffusion step leaves
-    // it untouched), for inspection; not part of particles.pvd.
+    // The state the failing step started from (the library puts it back), for
+    // inspection; not part of particles.pvd.
     if (write) {
       try {
         bool finite = true;
         for (const Vec3& x : particles.positions()) finite = finite && x.allFinite();
         if (finite) {
-          std::vector<std::int32_t> flags(particles.size(), kElsewhere);
-          for (std::size_t p = 0; p < particles.size(); ++p) {
-            const BoundaryQuery q = domain_->query(particles.positions()[p]);
-            if (q.signed_distance <= 0.0)
-              flags[p] = kInside;
-            else if (q.patch >= 0 && st.is_dirichlet[static_cast<std::size_t>(q.patch)] && q.signed_distance <= (d.reservoir_width > 0.0 ? d.reservoir_width : d.layer_b))
-              flags[p] = kBuffer;
-          }
+          std::vector<std::int32_t> flags;
+          sim.measure(d.center, &flags);
           std::filesystem::create_directories(out);
           write_file_atomic(out / "particles_failed.vtp", vtp_document(particles, last.t, flags));
         }
