@@ -5,9 +5,14 @@ python3-numpy and python3-matplotlib).
     python3 scripts/plot.py OUTDIR [--out PNGDIR]
         mass.png     M/M_inf against t (inside, with the external layer), with
                      Crank's curve when the run has a reference
-        inertia.png  J_G/J_inf against t (or J_G and the free-space line)
+        inertia.png  J_G/J_inf against t with the analytic J_ref(t)/J_inf when
+                     the run has a J_inf; otherwise J_G itself, and with
+                     reference = "free_space" the blob density's second
+                     moment S and its free-space line S(0) + 2 d kappa M t
         slice.png    particles of the last VTK snapshot in a slab through the
-                     diagnostics centre, coloured by age
+                     diagnostics centre, coloured by age, with the domain
+                     boundary and the outer edge of the layer (reservoir band
+                     w, or the papers' b) over the Dirichlet patches
 
     python3 scripts/plot.py --convergence DIR1 DIR2 DIR3 ... [--out PNGDIR]
         convergence.png  relative L1-in-time error of M and J_G against m_p
@@ -29,6 +34,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from mpl_toolkits.axes_grid1 import make_axes_locatable  # noqa: E402
 import numpy as np  # noqa: E402
 
 
@@ -119,6 +125,199 @@ def reference_mass_ratio(series, summary):
     return None
 
 
+def plot_with_layer(ax, t, values, primary, label):
+    """The with-layer line: on the main axis when it is of the same size as the
+    primary lines, else on a right-hand axis of its own (a reservoir band can
+    hold many times the mass inside Omega and would flatten the other lines)."""
+    top = np.nanmax(np.abs(np.concatenate([np.ravel(p) for p in primary])))
+    if np.nanmax(np.abs(values)) <= 2.0 * max(top, 1e-300):
+        return ax.plot(t, values, "--", label=label)[0]
+    right = ax.twinx()
+    line = right.plot(t, values, "--", color="tab:orange", label=f"{label} (right axis)")[0]
+    right.set_ylabel(f"{label} (right axis)")
+    return line
+
+
+# ----------------------------------------------------------------- polar inertia
+
+# Where the analytic curves come from (include/otfp/analytic.hpp).
+MASS_REFERENCE_NAMES = {"crank_sphere": "Crank 6.20 (sphere)", "crank_slab": "Crank 4.18 (slab)"}
+INERTIA_REFERENCE_NAMES = {"crank_sphere": "from Crank 6.18 (sphere)", "crank_slab": "from Crank 4.17 (slab)"}
+
+
+def plot_inertia(ax, series, summary):
+    """J_G against t: as J_G / J_inf when the run has a J_inf, else absolute."""
+    ref = summary["config"]["diagnostics"]["reference"]
+    j_inf = summary["derived"].get("J_inf")
+    if j_inf and "polar_inertia_ratio" in series:
+        # polar_inertia_ratio = polar_inertia / J_inf (docs/outputs.md); the
+        # with-layer value and the analytic reference (an absolute J_ref(t))
+        # are divided by the same J_inf so that all lines share the axis.
+        t = series["t"]
+        lines = [ax.plot(t, series["polar_inertia_ratio"], label="J_G / J_inf (inside, (44))")[0]]
+        primary = [series["polar_inertia_ratio"], [1.0]]
+        lines.append(ax.axhline(1.0, color="0.5", lw=0.8, ls="-.", label="J_inf"))
+        if "reference_polar_inertia" in series:
+            primary.append(series["reference_polar_inertia"] / j_inf)
+            lines.append(ax.plot(t, primary[-1], "k:", label=f"J_ref(t) / J_inf ({INERTIA_REFERENCE_NAMES.get(ref, ref)})")[0])
+        lines.insert(1, plot_with_layer(ax, t, series["polar_inertia_with_layer"] / j_inf, primary,
+                                        "with external layer"))
+        ax.set_ylabel(f"J_G / J_inf  (J_inf = {j_inf:.4g})")
+        return lines
+    # No J_inf (free space, or a domain without one): absolute values.
+    lines = [ax.plot(series["t"], series["polar_inertia_total"], label="J_G (all particles)")[0]]
+    if "reference_polar_inertia" in series:
+        lines += ax.plot(series["t"], series["reference_polar_inertia"], "k:",
+                         label=f"J_ref(t) ({INERTIA_REFERENCE_NAMES.get(ref, ref)})")
+    if ref == "free_space":
+        # The free-space reference is that of the blob density's second moment
+        # S = J_G + sum_p m_p d s_p^2 / 2, which includes the blob widths.
+        lines += ax.plot(series["t"], series["second_moment"], "--", label="S (blob density: J_G + widths)")
+        lines += ax.plot(series["t"], series["reference_second_moment"], "k:", label="free space: S(0) + 2 d kappa M t")
+        ax.set_ylabel("J_G, S  (M L^2)")
+    else:
+        ax.set_ylabel("J_G  (M L^2)")
+    return lines
+
+
+# ----------------------------------------------------------------- domain outline
+
+def _circle(ax, centre, radius, **kw):
+    phi = np.linspace(0.0, 2.0 * math.pi, 361)
+    return ax.plot(centre[0] + radius * np.cos(phi), centre[1] + radius * np.sin(phi), **kw)[0]
+
+
+def _rect(ax, lo, hi, **kw):
+    return ax.plot([lo[0], hi[0], hi[0], lo[0], lo[0]], [lo[1], lo[1], hi[1], hi[1], lo[1]], **kw)[0]
+
+
+def _chord(radius, dz):
+    """Half-width of a circle of this radius cut at distance dz from its centre (None: missed)."""
+    return math.sqrt(radius * radius - dz * dz) if abs(dz) < radius else None
+
+
+def layer_width(summary):
+    """Width of the layer outside the Dirichlet patches: the reservoir band w, or
+    the papers' b when there is no band; 0 without Dirichlet patches."""
+    der = summary["derived"]
+    if not any(p.get("kind") == "dirichlet" for p in der.get("patches", [])):
+        return 0.0
+    w = der.get("reservoir_width") or 0.0
+    return w if w > 0.0 else (der.get("layer_b") or 0.0)
+
+
+def draw_domain(ax, summary, z0):
+    """Outline of Omega (solid) and of Omega plus the layer over the Dirichlet
+    patches (dashed) in the plane z = z0 (3D) or the x-y plane (2D).
+    Returns (handles, notes): legend handles and what could not be drawn."""
+    cfg, der = summary["config"], summary["derived"]
+    dom, dim = cfg["domain"], cfg["run"]["dim"]
+    kind = dom["type"]
+    w = layer_width(summary)
+    dirichlet = {p["name"] for p in der.get("patches", []) if p.get("kind") == "dirichlet"}
+    base_names = {"surface", "x-", "x+", "y-", "y+", "z-", "z+", "lateral", "cap_a", "cap_b", "obstacle"}
+    notes = []
+    if dirichlet - base_names:
+        notes.append("layer over Dirichlet sub-patches not drawn")
+    wall = dict(color="k", lw=1.2)
+    lay = dict(color="tab:red", lw=1.0, ls="--")
+    handles = []
+    if kind == "ball":
+        R = dom["radius"]
+        dz = z0 - dom["center"][2] if dim == 3 else 0.0
+        h = _chord(R, dz)
+        if h is not None:
+            handles.append(_circle(ax, dom["center"], h, label=f"boundary R = {R:.3g}", **wall))
+        if w > 0 and "surface" in dirichlet:
+            h = _chord(R + w, dz)
+            if h is not None:
+                handles.append(_circle(ax, dom["center"], h, label=f"R + {w:.3g} (layer outer edge)", **lay))
+    elif kind in ("box", "periodic_box", "square_pipe_obstacle"):
+        lo, hi = list(dom["lo"]), list(dom["hi"])
+        if dim == 3 and not lo[2] <= z0 <= hi[2]:
+            return handles, notes + ["the slab misses the box"]
+        label = "periodic box" if kind == "periodic_box" else "box walls"
+        handles.append(_rect(ax, lo, hi, label=label, **wall))
+        if w > 0:
+            lo_l, hi_l = list(lo), list(hi)
+            for k, axis in enumerate("xy"):
+                if f"{axis}-" in dirichlet:
+                    lo_l[k] -= w
+                if f"{axis}+" in dirichlet:
+                    hi_l[k] += w
+            if lo_l != lo or hi_l != hi:
+                handles.append(_rect(ax, lo_l, hi_l, label=f"layer outer edge (width {w:.3g})", **lay))
+        if kind == "square_pipe_obstacle":
+            oc = dom.get("obstacle_center") or [0.5 * (a + b) for a, b in zip(lo, hi)]
+            r = dom.get("obstacle_radius") or 0.2 * min(hi[k] - lo[k] for k in range(dim) if k != "xyz".index(dom["obstacle_axis"]))
+            axis = dom["obstacle_axis"] if dim == 3 else "z"
+            if axis == "z":
+                handles.append(_circle(ax, oc, r, color="k", lw=1.2, ls="-", label="obstacle"))
+            else:
+                h = _chord(r, z0 - oc[2])
+                if h is not None:
+                    k = 1 if axis == "x" else 0  # the transverse axis in the x-y plane
+                    for edge in (oc[k] - h, oc[k] + h):
+                        if k == 1:
+                            ax.plot([lo[0], hi[0]], [edge, edge], **wall)
+                        else:
+                            ax.plot([edge, edge], [lo[1], hi[1]], **wall)
+    elif kind == "cylinder":
+        a, b, R = np.array(dom["end_a"], float), np.array(dom["end_b"], float), dom["radius"]
+        e = (b - a) / np.linalg.norm(b - a)
+        if abs(e[2]) > 1 - 1e-12:
+            handles.append(_circle(ax, a, R, label=f"lateral wall R = {R:.3g}", **wall))
+            if w > 0 and "lateral" in dirichlet:
+                handles.append(_circle(ax, a, R + w, label=f"R + {w:.3g} (layer outer edge)", **lay))
+        elif abs(e[2]) < 1e-12 and (abs(e[0]) > 1 - 1e-12 or abs(e[1]) > 1 - 1e-12):
+            k = 0 if abs(e[0]) > 0.5 else 1  # axis in the plane
+            j = 1 - k
+            def outline(radius, ext_a, ext_b, **kw):
+                h = _chord(radius, z0 - a[2])
+                if h is None:
+                    return None
+                lo, hi = [0.0, 0.0], [0.0, 0.0]
+                lo[k], hi[k] = min(a[k], b[k]) - ext_a, max(a[k], b[k]) + ext_b
+                lo[j], hi[j] = a[j] - h, a[j] + h
+                return _rect(ax, lo, hi, **kw)
+            first = "cap_a" if a[k] < b[k] else "cap_b"
+            second = "cap_b" if first == "cap_a" else "cap_a"
+            hnd = outline(R, 0.0, 0.0, label=f"cylinder walls R = {R:.3g}", **wall)
+            if hnd is not None:
+                handles.append(hnd)
+            if w > 0 and dirichlet & {"lateral", "cap_a", "cap_b"}:
+                hnd = outline(R + w if "lateral" in dirichlet else R, w if first in dirichlet else 0.0,
+                              w if second in dirichlet else 0.0, label=f"layer outer edge (width {w:.3g})", **lay)
+                if hnd is not None:
+                    handles.append(hnd)
+        else:
+            notes.append("cylinder axis oblique to the slice: outline not drawn")
+    return handles, notes
+
+
+def draw_domain_1d(ax, summary):
+    """Walls (solid) and the layer's outer edge (dashed) of a 1D run as vertical lines."""
+    dom = summary["config"]["domain"]
+    w = layer_width(summary)
+    dirichlet = {p["name"] for p in summary["derived"].get("patches", []) if p.get("kind") == "dirichlet"}
+    if dom["type"] == "ball":
+        ends = [(dom["center"][0] - dom["radius"], -1, "surface"), (dom["center"][0] + dom["radius"], 1, "surface")]
+    elif dom["type"] in ("box", "periodic_box"):
+        ends = [(dom["lo"][0], -1, "x-"), (dom["hi"][0], 1, "x+")]
+    else:
+        return []
+    handles = []
+    for i, (x, side, name) in enumerate(ends):
+        h = ax.axvline(x, color="k", lw=1.2, label="boundary" if i == 0 else None)
+        if i == 0:
+            handles.append(h)
+        if w > 0 and name in dirichlet:
+            h = ax.axvline(x + side * w, color="tab:red", lw=1.0, ls="--", label=f"layer outer edge (width {w:.3g})")
+            if len(handles) < 2:
+                handles.append(h)
+    return handles
+
+
 # ----------------------------------------------------------------- run plots
 
 def plot_run(run_dir, out_dir):
@@ -130,38 +329,30 @@ def plot_run(run_dir, out_dir):
 
     m_inf = der["M_inf"]
     fig, ax = plt.subplots(figsize=(6, 4))
-    ax.plot(t, series["mass_inside"] / m_inf, label="M / M_inf (inside, (43))")
-    ax.plot(t, series["mass_with_layer"] / m_inf, "--", label="with external layer")
+    lines = ax.plot(t, series["mass_inside"] / m_inf, label="M / M_inf (inside, (43))")
+    primary = [series["mass_inside"] / m_inf]
     ref = reference_mass_ratio(series, summary)
     if ref is not None:
-        name = summary["config"]["diagnostics"]["reference"].replace("_", " ")
-        ax.plot(t, ref, "k:", label=f"{name} (Crank)")
+        name = MASS_REFERENCE_NAMES.get(summary["config"]["diagnostics"]["reference"], "reference")
+        lines += ax.plot(t, ref, "k:", label=name)
+        primary.append(ref)
+    lines.insert(1, plot_with_layer(ax, t, series["mass_with_layer"] / m_inf, primary, "with external layer"))
     ax.set_xlabel("t")
     ax.set_ylabel("M / M_inf")
     ax.set_title(os.path.basename(os.path.normpath(run_dir)))
     ax.grid(alpha=0.3)
-    ax.legend()
+    ax.legend(handles=lines)
     fig.tight_layout()
     written.append(os.path.join(out_dir, "mass.png"))
     fig.savefig(written[-1], dpi=120)
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(6, 4))
-    j_inf = der.get("J_inf")
-    if j_inf:
-        ax.plot(t, series["polar_inertia"] / j_inf, label="J_G / J_inf (inside, (44))")
-        ax.plot(t, series["polar_inertia_with_layer"] / j_inf, "--", label="with external layer")
-        ax.axhline(1.0, color="k", lw=0.8, ls=":")
-        ax.set_ylabel("J_G / J_inf")
-    else:
-        ax.plot(t, series["polar_inertia_total"], label="J_G (all particles)")
-        ax.set_ylabel("J_G")
-    if "reference_polar_inertia" in series:
-        ax.plot(t, series["reference_polar_inertia"], "k:", label="J(0) + 2 d kappa M t")
+    lines = plot_inertia(ax, series, summary)
     ax.set_xlabel("t")
     ax.set_title(os.path.basename(os.path.normpath(run_dir)))
     ax.grid(alpha=0.3)
-    ax.legend()
+    ax.legend(handles=lines)
     fig.tight_layout()
     written.append(os.path.join(out_dir, "inertia.png"))
     fig.savefig(written[-1], dpi=120)
@@ -174,10 +365,12 @@ def plot_run(run_dir, out_dir):
         dim = summary["config"]["run"]["dim"]
         centre = np.array(der["center"])
         fig, ax = plt.subplots(figsize=(6, 5))
+        handles, notes = [], []
         if dim == 1:
             sc = ax.scatter(pos[:, 0], age, c=age, s=8, cmap="viridis")
             ax.set_ylabel("age")
             title = "all particles"
+            handles = draw_domain_1d(ax, summary)
         else:
             keep = np.ones(len(pos), dtype=bool)
             title = "all particles"
@@ -187,12 +380,23 @@ def plot_run(run_dir, out_dir):
                 keep = np.abs(pos[:, 2] - centre[2]) <= half
                 title = f"|z - {centre[2]:.3g}| <= {half:.3g}"
             sc = ax.scatter(pos[keep, 0], pos[keep, 1], c=age[keep], s=10, cmap="viridis")
+            handles, notes = draw_domain(ax, summary, centre[2] if dim == 3 else 0.0)
             ax.set_aspect("equal")
+            # Fit the figure to the domain's aspect (a long box would leave the
+            # axes a thin strip in a square figure).
+            (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+            fig.set_size_inches(6.5, min(7.0, max(3.4, 4.6 * (y1 - y0) / max(x1 - x0, 1e-300) + 1.9)))
             ax.set_ylabel("y")
+        for note in notes:
+            print(f"plot.py: slice.png: {note}", file=sys.stderr)
+        if handles:
+            fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=9)
         ax.set_xlabel("x")
-        fig.colorbar(sc, ax=ax, label="age (time since insertion)")
+        # A colour bar as tall as the axes (with an equal aspect they can be short).
+        cax = make_axes_locatable(ax).append_axes("right", size="4%", pad=0.1)
+        fig.colorbar(sc, cax=cax, label="age (time since insertion)")
         ax.set_title(f"t = {arrays['_time']:.4g}, {title}")
-        fig.tight_layout()
+        fig.tight_layout(rect=(0, 0.07 if handles else 0, 1, 1))
         written.append(os.path.join(out_dir, "slice.png"))
         fig.savefig(written[-1], dpi=120)
         plt.close(fig)

@@ -8,6 +8,14 @@ Reads the sweep directories written by scripts/studies.sh (DIR/STUDY/...:
 runs.csv and each run's series.csv, summary.json, particles_final.csv), writes
 DOCS/<study>*.png, DOCS/<study>.md (the tables) and a small copy of the data
 (runs.csv and thinned series) under DOCS/data/<study>/.
+
+Without a run's summary.json (a sweep directory rebuilt from those copies:
+DIR/STUDY/CASE/runs.csv with DIR/STUDY/CASE/run_NNN/series.csv) the plots use
+fallbacks: m_p = mass_total / n_particles at T (every particle has the same
+mass), kappa k^2 from the reference curve of the cosine mode; the tables then
+lack their summary-only columns, the width histogram of variable_width_sphere.png
+needs particles_final.csv, and the time-discretisation errors of study 1 come
+from the thinned series (close to, not equal to, those of the full series).
 """
 import argparse
 import csv
@@ -22,6 +30,18 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.legend_handler import HandlerTuple  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
+
+# The docs pages show each figure about 700-900 px wide: sizes of a paper
+# figure, set once here. Figures have at most two panels per row.
+plt.rcParams.update({
+    "font.size": 12, "axes.titlesize": 13, "axes.labelsize": 12, "xtick.labelsize": 11, "ytick.labelsize": 11,
+    "legend.fontsize": 10, "legend.framealpha": 0.9, "lines.markersize": 7, "lines.linewidth": 1.6,
+    "savefig.dpi": 100, "savefig.bbox": "tight",
+})
+PANEL = (6.4, 4.8)  # inches per panel
 
 SCHEME_KEYS = ("solver.stepper", "solver.backend", "solver.explicit_scheme")
 SCHEME_ORDER = ["explicit euler27", "explicit rk4", "explicit euler_exact", "implicit ceres", "implicit nlopt"]
@@ -32,6 +52,64 @@ SCHEME_STYLE = {
     "implicit ceres": ("tab:blue", "D"),
     "implicit nlopt": ("tab:green", "v"),
 }
+
+
+def panels(n, legend_slot=False):
+    """A grid of n panels, two per row; with legend_slot one more cell that
+    holds a shared legend. Returns (fig, list of axes, legend axis or None)."""
+    cells = n + (1 if legend_slot else 0)
+    cols = 1 if cells == 1 else 2
+    rows = (cells + cols - 1) // cols
+    fig, grid = plt.subplots(rows, cols, figsize=(PANEL[0] * cols, PANEL[1] * rows), squeeze=False)
+    flat = list(grid.flat)
+    for ax in flat[cells:]:
+        ax.axis("off")
+    leg = None
+    if legend_slot:
+        leg = flat[n]
+        leg.axis("off")
+    return fig, flat[:n], leg
+
+
+def log_ticks(ax, axis, values):
+    """Readable ticks on a log axis: at the data values themselves (plain
+    numbers) when they span less than two decades, else decades only; never
+    the crowded minor labels (4x10^2, 6x10^2, ...)."""
+    v = np.asarray([x for x in values if x > 0 and math.isfinite(x)], float)
+    a = ax.xaxis if axis == "x" else ax.yaxis
+    a.set_minor_formatter(NullFormatter())
+    if len(v) and v.max() / v.min() < 100.0:
+        ticks = np.unique(v)
+        # Thin out ticks closer than a factor 1.4 on the axis.
+        kept = [ticks[0]]
+        for t in ticks[1:]:
+            if t / kept[-1] >= 1.4:
+                kept.append(t)
+        (ax.set_xticks if axis == "x" else ax.set_yticks)(kept)
+        a.set_major_formatter(FuncFormatter(lambda x, _pos: f"{x:.3g}"))
+    a.ticks_at_data = True
+
+
+def finish(fig, path):
+    """Label the log axes that span few decades at 1, 2, 5 x 10^k in plain
+    numbers (instead of a single 10^k), hide crowded minor labels, save."""
+    for ax in fig.axes:
+        for axis, scale, lim in (("x", ax.get_xscale(), ax.get_xlim()), ("y", ax.get_yscale(), ax.get_ylim())):
+            a = ax.xaxis if axis == "x" else ax.yaxis
+            if scale != "log" or getattr(a, "ticks_at_data", False):
+                continue
+            a.set_minor_formatter(NullFormatter())
+            lo, hi = min(lim), max(lim)
+            if lo > 0 and hi / lo < 10 ** 2.2:
+                a.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0), numticks=20))
+                a.set_major_formatter(FuncFormatter(lambda x, _pos: f"{x:.3g}"))
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def key_handle(color, marker=None, ls="-"):
+    """A legend entry for a colour / marker / line style drawn elsewhere."""
+    return Line2D([], [], color=color, marker=marker, linestyle=ls)
 
 
 # ------------------------------------------------------------------ reading
@@ -150,15 +228,19 @@ def implicit_explicit(sweeps, docs):
         if not os.path.exists(os.path.join(d, "runs.csv")):
             continue
         rows = read_rows(os.path.join(d, "runs.csv"))
-        fig, axes = plt.subplots(1, 4, figsize=(21, 4.6))
+        fig, axes, _ = panels(4)
         table = []
+        schemes_drawn = []
+        dts_drawn = []
         for sch in SCHEME_ORDER:
             rs = [r for r in rows if scheme(r) == sch]
             if not rs:
                 continue
             color, marker = SCHEME_STYLE[sch]
             ok = [r for r in rs if r["status"] == "completed"]
+            schemes_drawn.append(sch)
             x = [num(r, "run.dt_factor") for r in ok]
+            dts_drawn += x
             e = [num(r, "ref_mean_abs_error") for r in ok]
             w = [num(r, "wall_seconds") for r in ok]
             axes[0].loglog(x, e, marker=marker, color=color, label=sch)
@@ -189,36 +271,43 @@ def implicit_explicit(sweeps, docs):
                     s = series(d, r)
                     if s is not None:
                         ls = {1.0: "-", 10.0: "--", 100.0: ":"}[num(r, "run.dt_factor")]
-                        axes[2].plot(s["t"], s["mass_ratio"], ls, color=color, lw=1.2)
+                        axes[2].plot(s["t"], s["mass_ratio"], ls, color=color, lw=1.4)
         axes[3].set_xlabel("dt / dt_explicit")
-        axes[3].set_ylabel("mean |M/M_inf - same scheme at the smallest dt|")
-        axes[3].set_title("time-discretisation error")
-        axes[3].grid(True, which="both", alpha=0.3)
-        axes[3].legend(fontsize=8)
+        axes[3].set_ylabel("mean |M/M_inf - M at smallest dt|")
+        axes[3].set_title("time-discretisation error (same scheme)")
         s_ref = None
         for r in rows:
             s_ref = series(d, r)
             if s_ref is not None and "reference_mass_ratio" in s_ref and len(s_ref["t"]) > 50:
                 break
+        ls_key = [key_handle("0.3", ls=ls) for ls in ("-", "--", ":")]
+        ls_names = ["dt = 1 dt_expl", "dt = 10 dt_expl", "dt = 100 dt_expl"]
         if s_ref is not None:
-            axes[2].plot(s_ref["t"], s_ref["reference_mass_ratio"], "k-", lw=2.5, alpha=0.35, label="Crank")
-        axes[0].set_xlabel("dt / dt_explicit  (dt_explicit = dr^2 / kappa, (39))")
+            axes[2].plot(s_ref["t"], s_ref["reference_mass_ratio"], "k-", lw=3, alpha=0.35)
+            ls_key.append(Line2D([], [], color="k", lw=3, alpha=0.35))
+            ls_names.append("Crank")
+        axes[0].set_xlabel("dt / dt_explicit  (dt_explicit = dr^2 / kappa)")
         axes[0].set_ylabel("mean |M/M_inf - Crank| over [0, T]")
-        axes[0].set_title(title)
-        axes[0].legend(fontsize=8)
+        axes[0].set_title("error against Crank")
         axes[1].set_xlabel("wall time [s] (1 thread)")
         axes[1].set_ylabel("mean |M/M_inf - Crank|")
         axes[1].set_title("error vs cost")
         axes[2].set_xlabel("t")
         axes[2].set_ylabel("M / M_inf")
-        axes[2].set_title("dt = 1x (solid), 10x (dashed), 100x (dotted)")
+        axes[2].set_title("filling curves (colour: scheme)")
         axes[2].set_ylim(-0.05, 1.6)
-        axes[2].legend(fontsize=8)
-        for ax in axes[:2]:
+        axes[2].legend(ls_key, ls_names, loc="upper left")
+        for ax in axes:
             ax.grid(True, which="both", alpha=0.3)
-        fig.tight_layout()
-        fig.savefig(os.path.join(docs, f"implicit_explicit_{case}.png"), dpi=90)
-        plt.close(fig)
+        for ax in (axes[0], axes[3]):
+            log_ticks(ax, "x", dts_drawn)
+        axes[1].xaxis.set_minor_formatter(NullFormatter())
+        fig.legend([key_handle(SCHEME_STYLE[sch][0], SCHEME_STYLE[sch][1]) for sch in schemes_drawn], schemes_drawn,
+                   loc="lower center", ncol=min(3, len(schemes_drawn)), title="scheme (colour and marker)",
+                   bbox_to_anchor=(0.5, -0.01))
+        fig.suptitle(title, fontsize=15)
+        fig.tight_layout(rect=(0, 0.08, 1, 1))
+        finish(fig, os.path.join(docs, f"implicit_explicit_{case}.png"))
         md.append(f"## {title}\n")
         md.append(md_table(["scheme", "dt/dt_expl", "status", "steps", "evaluations", "wall [s]",
                             "mean abs err M", "max abs err M", "mean abs err J", "dt error M", "M/M_inf(T)",
@@ -256,36 +345,42 @@ def width_label(row):
     return "per-particle, c_w = " + ("1 (as printed)" if row.get("solver.width_metric") == "as_printed" else "d/2 (exact)")
 
 
+WIDTH_COLORS = {"fixed beta": "tab:blue", "per-particle, c_w = 1 (as printed)": "tab:orange",
+                "per-particle, c_w = d/2 (exact)": "tab:green"}
+
+
 def variable_width(sweeps, docs):
     md = ["# Study 2: variable-width blobs (generated by scripts/study_plots.py)\n"]
     d = os.path.join(sweeps, "variable_width", "free_space")
     if os.path.exists(os.path.join(d, "runs.csv")):
         rows = read_rows(os.path.join(d, "runs.csv"))
-        fig, axes = plt.subplots(1, 3, figsize=(15, 4.3))
+        dims = sorted({int(num(r, "run.dim")) for r in rows})
+        fig, axes, leg = panels(len(dims), legend_slot=True)
         table = []
+        drawn = []
         for r in rows:
             dim = int(num(r, "run.dim"))
             s = series(d, r)
-            sm = summary(d, r)
             table.append([dim, width_label(r), r["status"], num(r, "growth_ratio"), num(r, "ref_mean_abs_error"),
                           num(r, "evaluations"), num(r, "wall_seconds")])
-            if s is None or sm is None:
+            if s is None:
                 continue
-            ax = axes[dim - 1]
+            ax = axes[dims.index(dim)]
             growth = s["second_moment"] - s["second_moment"][0]
-            ax.plot(s["t"], growth, label=width_label(r))
+            ax.plot(s["t"], growth, color=WIDTH_COLORS.get(width_label(r)))
+            if width_label(r) not in drawn:
+                drawn.append(width_label(r))
             if r.get("solver.width_mode") == "fixed":
-                ax.plot(s["t"], s["reference_second_moment"] - s["reference_second_moment"][0], "k:",
-                        label="2 d kappa M t")
+                ax.plot(s["t"], s["reference_second_moment"] - s["reference_second_moment"][0], "k:", lw=2)
             ax.set_title(f"free space, d = {dim}")
             ax.set_xlabel("t")
-            ax.set_ylabel("second moment growth S(t) - S(0)")
+            ax.set_ylabel("S(t) - S(0)")
         for ax in axes:
-            ax.legend(fontsize=8)
             ax.grid(alpha=0.3)
+        leg.legend([key_handle(WIDTH_COLORS.get(w)) for w in drawn] + [key_handle("k", ls=":")],
+                   drawn + ["2 d kappa M t (exact)"], loc="center", title="widths", fontsize=11)
         fig.tight_layout()
-        fig.savefig(os.path.join(docs, "variable_width_free_space.png"), dpi=90)
-        plt.close(fig)
+        finish(fig, os.path.join(docs, "variable_width_free_space.png"))
         md.append("## Free space: growth of the second moment, (S(T) - S(0)) / (2 d kappa M T)\n")
         md.append(md_table(["d", "widths", "status", "growth ratio", "mean abs err (of 2dkMT)", "evaluations",
                             "wall [s]"], table))
@@ -294,7 +389,7 @@ def variable_width(sweeps, docs):
     d = os.path.join(sweeps, "variable_width", "sphere")
     if os.path.exists(os.path.join(d, "runs.csv")):
         rows = read_rows(os.path.join(d, "runs.csv"))
-        fig, axes = plt.subplots(1, 2, figsize=(12, 4.3))
+        fig, axes, _ = panels(2)
         table = []
         for r in rows:
             s = series(d, r)
@@ -304,14 +399,15 @@ def variable_width(sweeps, docs):
                           num(r, "wall_seconds")])
             if s is None:
                 continue
-            axes[0].plot(s["t"], s["mass_ratio"], label=width_label(r))
+            axes[0].plot(s["t"], s["mass_ratio"], color=WIDTH_COLORS.get(width_label(r)), label=width_label(r))
             pf = os.path.join(d, r["dir"], "particles_final.csv")
             if r.get("solver.width_mode") != "fixed" and os.path.exists(pf) and sm is not None:
                 p = read_rows(pf)
                 s0 = sm["derived"]["width_s"]
                 ws = np.array([float(q["width_s"]) / s0 for q in p if q["region"] == "0"])
                 if len(ws):
-                    axes[1].hist(ws, bins=40, histtype="step", lw=1.5, label=width_label(r) + f" (n = {len(ws)})")
+                    axes[1].hist(ws, bins=40, histtype="step", lw=1.8, color=WIDTH_COLORS.get(width_label(r)),
+                                 label=width_label(r) + f" (n = {len(ws)})")
                     md.append(f"- {width_label(r)}: s/s0 of the {len(ws)} particles inside at t = T: "
                               f"median {np.median(ws):.3f}, 5% {np.percentile(ws, 5):.3f}, "
                               f"95% {np.percentile(ws, 95):.3f}, min {ws.min():.3f}, max {ws.max():.3f}\n")
@@ -322,14 +418,15 @@ def variable_width(sweeps, docs):
         axes[0].set_xlabel("t")
         axes[0].set_ylabel("M / M_inf")
         axes[0].set_title("sphere filling")
-        axes[0].legend(fontsize=8)
-        axes[1].set_xlabel("s / s0 (width relative to the rule (36)), particles inside at t = T")
+        axes[0].grid(alpha=0.3)
+        axes[0].legend(loc="lower right")
+        axes[1].set_xlabel("s / s0 (s0: width rule (36)), inside at t = T")
         axes[1].set_ylabel("count")
         axes[1].set_title("distribution of widths at the end")
-        axes[1].legend(fontsize=8)
+        if axes[1].get_legend_handles_labels()[0]:
+            axes[1].legend()
         fig.tight_layout()
-        fig.savefig(os.path.join(docs, "variable_width_sphere.png"), dpi=90)
-        plt.close(fig)
+        finish(fig, os.path.join(docs, "variable_width_sphere.png"))
         md.append("\n## Sphere filling against Crank\n")
         md.append(md_table(["widths", "status", "mean abs err M", "max abs err M", "mean abs err J", "M/M_inf(T)",
                             "evaluations", "wall [s]"], table))
@@ -348,7 +445,9 @@ def diffusivity(sweeps, docs):
         return
     rows = read_rows(os.path.join(d, "runs.csv"))
     dts = sorted({num(r, "run.dt_factor") for r in rows})
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
+    fig, axes, leg = panels(3, legend_slot=True)
+    drawn = []
+    dt_styles = ["-", "--", "-.", ":"]
     for k, arr in enumerate(("lattice", "random")):
         ax = axes[k]
         for sch in SCHEME_ORDER:
@@ -358,15 +457,20 @@ def diffusivity(sweeps, docs):
                              and num(r, "run.dt_factor") == dt], key=lambda r: num(r, "particles.beta_factor"))
                 if not rs:
                     continue
+                if sch not in drawn:
+                    drawn.append(sch)
                 ax.plot([num(r, "particles.beta_factor") for r in rs], [num(r, "rate_ratio") for r in rs],
-                        marker=marker, color=color, linestyle="-" if dt == min(dts) else "--",
-                        label=f"{sch}, dt = {fmt(dt)} dt_expl")
+                        marker=marker, color=color, linestyle=dt_styles[dts.index(dt) % len(dt_styles)])
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_xlabel("beta dr^2")
-        ax.set_ylabel("measured decay rate / (kappa k^2)")
+        ax.set_ylabel("decay rate / (kappa k^2)")
         ax.set_title(f"{arr} arrangement")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=6)
+    leg.legend([key_handle(SCHEME_STYLE[sch][0], SCHEME_STYLE[sch][1]) for sch in drawn] +
+               [key_handle("0.3", ls=dt_styles[i % len(dt_styles)]) for i in range(len(dts))] +
+               [key_handle("k", ls="-")],
+               drawn + [f"dt = {fmt(dt)} dt_expl" for dt in dts] + ["rate = kappa k^2"],
+               loc="center", title="top row: scheme (colour), dt (line)")
     ax = axes[2]
     for r in rows:
         if (scheme(r) == "implicit ceres" and r["particles.fill_arrangement"] == "lattice"
@@ -374,21 +478,25 @@ def diffusivity(sweeps, docs):
             s = series(d, r)
             if s is None:
                 continue
-            lam = 1.0
             sm = summary(d, r)
             if sm is not None:
                 lam = sm["reference"]["kappa_k2"]
+            else:
+                # Without summary.json (the copies in docs/validation/data):
+                # kappa k^2 from the reference curve a(0) exp(-kappa k^2 t).
+                ref = s["reference_mode_amplitude"]
+                lam = math.log(ref[0] / ref[-1]) / s["t"][-1]
             ax.semilogy(s["t"] * lam, s["mode_amplitude"] / s["mode_amplitude"][0],
                         label=f"beta dr^2 = {r['particles.beta_factor']}")
     t = np.linspace(0, 2, 50)
     ax.semilogy(t, np.exp(-t), "k:", lw=2, label="exp(-kappa k^2 t)")
     ax.set_xlabel("kappa k^2 t")
     ax.set_ylabel("a(t) / a(0)")
-    ax.set_title("mode amplitude, implicit (Ceres), lattice")
-    ax.legend(fontsize=8)
+    ax.set_title("mode amplitude, implicit Ceres, lattice")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower left")
     fig.tight_layout()
-    fig.savefig(os.path.join(docs, "diffusivity.png"), dpi=90)
-    plt.close(fig)
+    finish(fig, os.path.join(docs, "diffusivity.png"))
     md = ["# Study 3: effective diffusivity (generated by scripts/study_plots.py)\n",
           "Fitted decay rate of the cosine mode divided by kappa k^2 (`rate_ratio`), and divided by the rate "
           "the time scheme alone gives with an exact spatial operator (`time-discrete`).\n"]
@@ -439,7 +547,7 @@ def closed_box(sweeps, docs):
           "at both walls), implicit Ceres at dt = 0.25 dt_expl. `rate_ratio` is the fitted decay rate "
           "over kappa k^2, as in the periodic box (study 3; images make the closed box the even extension of the "
           "periodic one, so its rates are the periodic ones).\n"]
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig, axes, _ = panels(2)
     if os.path.exists(os.path.join(d, "runs.csv")):
         rows = read_rows(os.path.join(d, "runs.csv"))
         betas = sorted({num(r, "particles.beta_factor") for r in rows})
@@ -461,10 +569,10 @@ def closed_box(sweeps, docs):
         md.append("")
         axes[0].axhline(1.0, color="k", lw=0.8)
         axes[0].set_xlabel("beta dr^2")
-        axes[0].set_ylabel("measured decay rate / (kappa k^2)")
+        axes[0].set_ylabel("decay rate / (kappa k^2)")
         axes[0].set_title("closed box: cosine mode")
         axes[0].grid(alpha=0.3)
-        axes[0].legend(fontsize=8)
+        axes[0].legend(title="no_flux, arrangement")
     if os.path.exists(os.path.join(u, "runs.csv")):
         rows = [r for r in read_rows(os.path.join(u, "runs.csv")) if r["status"] == "completed"]
         md.append("## A uniform state next to the walls\n")
@@ -508,15 +616,14 @@ def closed_box(sweeps, docs):
                                [f">= {fmt(width * nbins)} dr (interior)", "first strip / interior"], table))
             md.append("")
         axes[1].axhline(1.0, color="k", lw=0.8)
-        axes[1].axhspan(0.95, 1.05, color="0.9")
+        axes[1].axhspan(0.95, 1.05, color="0.9", label="mean +- 5%")
         axes[1].set_xlabel("distance to the nearest wall / dr")
         axes[1].set_ylabel("particle density / mean")
-        axes[1].set_title("uniform state next to the walls (grey: +-5%)")
+        axes[1].set_title("uniform state next to the walls")
         axes[1].grid(alpha=0.3)
-        axes[1].legend(fontsize=8)
+        axes[1].legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     fig.tight_layout()
-    fig.savefig(os.path.join(docs, "closed_box.png"), dpi=90)
-    plt.close(fig)
+    finish(fig, os.path.join(docs, "closed_box.png"))
     with open(os.path.join(docs, "closed_box.md"), "w") as f:
         f.write("\n".join(md))
 
@@ -538,7 +645,8 @@ PAPER_EXPONENTS = {"sphere": (0.38, 0.43), "box": (0.32, 0.42), "pipe": (0.37, N
 
 def convergence(sweeps, docs):
     md = ["# Study 4: convergence with particle number (generated by scripts/study_plots.py)\n"]
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
+    fig, axes, leg = panels(3, legend_slot=True)
+    key = {}
     for k, case in enumerate(("sphere", "box", "pipe")):
         d = os.path.join(sweeps, "convergence", case)
         if not os.path.exists(os.path.join(d, "runs.csv")):
@@ -547,9 +655,20 @@ def convergence(sweeps, docs):
                       key=lambda r: num(r, "particles.n_inf"))
         if not rows:
             continue
-        mp = np.array([summary(d, r)["derived"]["particle_mass"] for r in rows])
+        # m_p from summary.json; the copies in docs/validation/data have no
+        # summary, and there every particle has the same mass: M / n at T.
+        mp = np.array([summary(d, r)["derived"]["particle_mass"] if summary(d, r) else
+                       num(r, "mass_total") / num(r, "n_particles") for r in rows])
         ax = axes[k]
         lines = []
+        handles = []
+
+        def draw(x, y, C, a, color, marker, name):
+            """Data (markers) and its fitted power law (dashed): one legend entry."""
+            p = ax.loglog(x, y, marker, color=color)[0]
+            f = ax.loglog(x, C * np.asarray(x) ** a, "--", color=color)[0]
+            handles.append(((p, f), f"m_p^{a:.2f}"))
+            key[name] = (color, marker)
         table = []
         eM = np.array([abs(num(r, "ref_l1_norm_relative_error")) for r in rows])
         eJ = np.array([abs(num(r, "ref2_l1_norm_relative_error")) for r in rows])
@@ -558,23 +677,21 @@ def convergence(sweeps, docs):
         l1J = np.array([num(r, "l1_polar_inertia") for r in rows])
         if np.isfinite(eM).any():
             C, a = fit_power(mp, eM)
-            ax.loglog(mp, eM, "o", color="tab:blue", label=f"|L1(M) - L1(Crank)| / L1(Crank): m_p^{a:.2f}")
-            ax.loglog(mp, C * mp ** a, "--", color="tab:blue")
+            draw(mp, eM, C, a, "tab:blue", "o", "|L1(M) - L1(Crank)| / L1(Crank)")
             lines.append(("L1-norm error of M against Crank (inside, trapezoid)", a))
             C, a = fit_power(mp, mM)
-            ax.loglog(mp, mM, "s", color="tab:orange", label=f"mean |M/M_inf - Crank|: m_p^{a:.2f}")
-            ax.loglog(mp, C * mp ** a, "--", color="tab:orange")
+            draw(mp, mM, C, a, "tab:orange", "s", "mean |M/M_inf - Crank| over [0, T]")
             lines.append(("L1-in-time error mean |M/M_inf - Crank|", a))
         if np.isfinite(eJ).any():
             C, a = fit_power(mp, eJ)
-            ax.loglog(mp, eJ, "^", color="tab:green", label=f"|L1(J) - L1(ref)| / L1(ref): m_p^{a:.2f}")
-            ax.loglog(mp, C * mp ** a, "--", color="tab:green")
+            draw(mp, eJ, C, a, "tab:green", "^", "|L1(J_G) - L1(J_ref)| / L1(J_ref)")
             lines.append(("L1-norm error of J_G against the analytic J", a))
         # The papers' procedure: fit L1 = L* + C m_p^alpha to (46a) as printed (all particles).
         Ls, Cs, al = fit_limit_power(mp, l1)
         if math.isfinite(al):
             e = np.abs(l1 - Ls) / abs(Ls)
-            ax.loglog(mp, e, "x", color="tab:red", label=f"(46a) vs fitted limit: m_p^{al:.2f}")
+            # The fit's own error curve |C| m_p^alpha / |L*|.
+            draw(mp, e, abs(Cs) / abs(Ls), al, "tab:red", "x", "|(46a) - L*| / L*, L* fitted (papers)")
             lines.append(("(46a) as printed vs its fitted limit L* (papers' procedure), L* = " + fmt(Ls), al))
         Ls, Cs, alJ = fit_limit_power(mp, l1J)
         if math.isfinite(alJ) and case != "pipe":
@@ -583,7 +700,9 @@ def convergence(sweeps, docs):
         ax.set_ylabel("relative error")
         ax.set_title(case)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
+        log_ticks(ax, "x", mp)
+        ax.legend([h for h, _ in handles], [n for _, n in handles], title="fit (dashed)",
+                  handler_map={tuple: HandlerTuple(ndivide=None)})
         paper = PAPER_TABLES[case]
         for r, m in zip(rows, mp):
             n = int(num(r, "particles.n_inf"))
@@ -609,9 +728,10 @@ def convergence(sweeps, docs):
         copy_data(d, os.path.join(docs, "data", "convergence", case),
                   ["t", "mass_ratio", "reference_mass_ratio", "polar_inertia", "reference_polar_inertia",
                    "mass_total", "n_particles"])
+    leg.legend([key_handle(c, m, ls="none") for c, m in key.values()] + [key_handle("0.3", ls="--")],
+               list(key.keys()) + ["least-squares power law"], loc="center", title="error measure")
     fig.tight_layout()
-    fig.savefig(os.path.join(docs, "convergence.png"), dpi=90)
-    plt.close(fig)
+    finish(fig, os.path.join(docs, "convergence.png"))
     with open(os.path.join(docs, "convergence.md"), "w") as f:
         f.write("\n".join(md))
 
@@ -687,12 +807,13 @@ def boundaries(sweeps, docs):
           "`pipe` runs the implicit stepper like the rest, `pipe_explicit` the same pipe with the explicit stepper "
           "(one evaluation per step, so the ladder reaches n_inf = 4000; the balance does not depend on the "
           "stepper).\n"]
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
+    fig, axes, _ = panels(4)
     style = {"papers": ("tab:red", "o"), "best": ("tab:blue", "s")}
     fits = []
     for k, case in enumerate(("sphere", "box", "pipe", "pipe_explicit")):
         pipe = case.startswith("pipe")
-        ax = axes[min(k, 2)]
+        ax = axes[k]
+        balance_drawn = False
         table = []
         for variant in ("papers", "best"):
             d = os.path.join(sweeps, "boundaries", f"{case}_{variant}")
@@ -719,9 +840,10 @@ def boundaries(sweeps, docs):
                     c, m = style[variant]
                     explicit = case == "pipe_explicit"
                     ax.plot(se["t"], se["mass_total"] / sm["derived"]["M_inf"], "--" if explicit else "-", color=c,
-                            alpha=0.4 + 0.6 * min(1.0, n / 4000.0),
-                            label=f"{variant}, n_inf = {n}{' (explicit)' if explicit else ''}: total mass")
-                    ax.plot(se["t"], bal / sm["derived"]["M_inf"], ":", color="k")
+                            alpha=0.4 + 0.6 * min(1.0, n / 4000.0), label=f"{variant}, n_inf = {n}")
+                    ax.plot(se["t"], bal / sm["derived"]["M_inf"], ":", color="k", lw=2,
+                            label=None if balance_drawn else "analytic balance")
+                    balance_drawn = True
                 ns.append(n)
                 errs.append(err)
                 errs_blob.append(err_blob)
@@ -741,14 +863,18 @@ def boundaries(sweeps, docs):
                 ax.loglog(xx, C * xx ** (-a), "--", color=c)
         if pipe:
             ax.set_yscale("log")
-            ax.set_xlabel("t (dotted: the analytic balance)")
+            ax.set_xlabel("t")
             ax.set_ylabel("M_total / M_inf")
         else:
             ax.set_xlabel("n_inf")
             ax.set_ylabel("mean |M/M_inf - Crank|")
-        ax.set_title("pipe (solid: implicit, dashed: explicit)" if pipe else case)
+            log_ticks(ax, "x", np.concatenate([np.asarray(ln.get_xdata(), float) for ln in ax.get_lines()]))
+        ax.set_title({"pipe": "pipe, implicit stepper", "pipe_explicit": "pipe, explicit stepper"}.get(case, case))
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=6 if pipe else 8)
+        if pipe:
+            ax.legend(ncol=2 if len(ax.get_lines()) > 8 else 1, fontsize=9, title="total mass")
+        else:
+            ax.legend(fontsize=9, title="treatment: fitted n^-alpha (dashed)")
         first = "mean abs err M (centres)" if not pipe else "max abs err of total mass vs balance"
         second = "mean abs err M_rho" if not pipe else "max abs err of mass inside vs balance"
         md.append(f"## {case}\n")
@@ -778,10 +904,13 @@ def boundaries(sweeps, docs):
                           num(r, "wall_seconds")])
             ns.append(num(r, "particles.n_inf"))
             e1.append(num(r, "ref_mean_abs_error"))
-        _, a1, s1 = fit_slope(ns, e1)
+        C1, a1, s1 = fit_slope(ns, e1)
         ax = axes[0 if case == "sphere" else 1]
         ax.loglog(ns, e1, "^", color="tab:green", label=f"best, beta dr^2 = 1: n^-({a1:.2f} +- {s1:.2f})")
-        ax.legend(fontsize=8)
+        if math.isfinite(a1):
+            xx = np.array([min(ns), max(ns)], float)
+            ax.loglog(xx, C1 * xx ** (-a1), "--", color="tab:green")
+        ax.legend(fontsize=9, title="treatment: fitted n^-alpha (dashed)")
         md.append(f"## {case.capitalize()}, best treatment: beta dr^2 = 2 against 1\n")
         md.append(md_table(["n_inf", "mean abs err, beta dr^2 = 2", "mean abs err, beta dr^2 = 1",
                             "max abs err, 2", "max abs err, 1", "wall [s] (2)", "wall [s] (1)"], table))
@@ -859,8 +988,7 @@ def boundaries(sweeps, docs):
     md.append(md_table(["case", "treatment", "alpha", "std. error", "error at largest n", "largest n"],
                        [[c, v, a, sa, e, str(n)] for c, v, a, sa, e, n in fits]))
     fig.tight_layout()
-    fig.savefig(os.path.join(docs, "boundaries.png"), dpi=90)
-    plt.close(fig)
+    finish(fig, os.path.join(docs, "boundaries.png"))
     with open(os.path.join(docs, "boundaries.md"), "w") as f:
         f.write("\n".join(md))
 
@@ -883,8 +1011,8 @@ def large_steps(sweeps, docs):
     present = [c for c in cases if os.path.exists(os.path.join(sweeps, "large_steps", c[0], "reference", "runs.csv"))]
     if not present:
         return
-    fig, axes = plt.subplots(1, len(present), figsize=(6.2 * len(present), 5.2), squeeze=False)
-    for ax, (case, title) in zip(axes[0], present):
+    fig, axes, leg = panels(len(present), legend_slot=True)
+    for ax, (case, title) in zip(axes, present):
         base = os.path.join(sweeps, "large_steps", case)
         ref_dir = os.path.join(base, "reference")
         ref_rows = [r for r in read_rows(os.path.join(ref_dir, "runs.csv")) if r["status"] == "completed"]
@@ -938,18 +1066,21 @@ def large_steps(sweeps, docs):
                           lw=1.5)
         if math.isfinite(floor) and floor > 0:
             ax.axhline(floor, color="k", ls=":", lw=1.2, label="seed-to-seed floor")
-        ax.set_title(title, fontsize=13)
-        ax.set_xlabel("wall time (s, one thread)", fontsize=12)
-        ax.set_ylabel("time-discretisation error of M/M_inf", fontsize=12)
+        ax.set_title(title)
+        ax.set_xlabel("wall time (s, one thread)")
+        ax.set_ylabel("time error of M/M_inf")
         ax.grid(True, which="both", alpha=0.3)
-        ax.tick_params(labelsize=11)
-        ax.legend(fontsize=10)
         md.append(f"\n## {title}\n\n")
         md.append(md_table(["scheme", "dt / dt_explicit or tolerance", "steps", "evaluations", "wall s",
                             "time error (mean over t)", "mean abs error vs analytic"], table))
+    # One legend for all panels: the union of their entries, in drawing order.
+    entries = {}
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(lab, h)
+    leg.legend(list(entries.values()), list(entries.keys()), loc="center", title="scheme (line: dt or tolerance ladder)")
     fig.tight_layout()
-    fig.savefig(os.path.join(docs, "large_steps.png"), dpi=110)
-    plt.close(fig)
+    finish(fig, os.path.join(docs, "large_steps.png"))
     with open(os.path.join(docs, "large_steps.md"), "w") as f:
         f.write("".join(md))
 

@@ -506,7 +506,7 @@ double BoundaryProjection::dirichlet_target_mass(std::size_t condition_index, do
   const std::vector<Vec3>& pts = quadrature_points_[condition_index];
   double target = 0.0;
   if (options_.dirichlet_target == DirichletTarget::CellIntegral) {
-    // METHOD-NOTES 2.7: the integral of g over B_l^int itself.
+    // docs/method_notes.md#dirichlet-target: the integral of g over B_l^int itself.
     if (interior_cell_volume_[condition_index] > 0.0)
       target = interior_cell_volume_[condition_index] * mean_of(c.data, pts, t);
   } else {
@@ -675,7 +675,7 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
               "must be finite (check f)");
       led.flux_integral += inflow;
       call.flux_integral += inflow;
-      // METHOD-NOTES 2.6: move whole particles and carry the remainder, instead
+      // docs/method_notes.md#neumann-carry: move whole particles and carry the remainder, instead
       // of dropping floor's fraction every step as (50) does.
       led.carry += inflow;
       while (led.carry >= threshold) {

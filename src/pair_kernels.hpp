@@ -2,7 +2,7 @@
 // The two pair sweeps of the exact gradient of (28) over a neighbour list, on
 // plain arrays so that the inner loops vectorise. On x86-64 an AVX2/FMA build
 // of the kernels is picked at run time, so the library needs no -march flag
-// (METHOD-NOTES 3: no -march=native against Debian's Ceres).
+// (docs/method_notes.md#solver-facts: no -march=native against Debian's Ceres).
 #include <cstddef>
 #include <cstdint>
 

@@ -79,7 +79,7 @@ TEST(BoundaryProjection, DirichletPatchesListsOnlyDirichlet) {
 
 // --------------------------------------------------------------------------- Dirichlet
 
-// METHOD-NOTES 2.7: unit sphere, n_inf = 1600, b = 0.29. The inner shell holds
+// docs/method_notes.md#dirichlet-target: unit sphere, n_inf = 1600, b = 0.29. The inner shell holds
 // 2.70 volume units, (34) assumes 4 pi b = 3.64.
 TEST(BoundaryProjection, DirichletFillsEmptyShellToTarget) {
   const double g = 0.238732, b = 0.29, mp = 1.0 / 1600.0, s = 0.05, dt = 0.01;
@@ -195,7 +195,7 @@ TEST(BoundaryProjection, DirichletNonConstantTargetUsesQuadrature) {
 
 // --------------------------------------------------------------------------- Neumann
 
-// METHOD-NOTES 2.6: 0.37 particles of inflow per step. (50) floors that to 0
+// docs/method_notes.md#neumann-carry: 0.37 particles of inflow per step. (50) floors that to 0
 // every step; the carried remainder moves 370 particles in 1000 steps.
 TEST(BoundaryProjection, NeumannInflowCarriesFractionalRemainder) {
   const double mp = 0.01, dt = 0.01, b = 0.1;

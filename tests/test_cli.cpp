@@ -121,7 +121,7 @@ std::string check_tags(const std::string& xml) {
 //    that gives the 0.03 allowed on top of the layer excess in the mean
 //    deviation, and the 0.1 band (4 sigma) for the filled state.
 //  * The filling must never lag Crank's curve by more than 0.1 M_inf: the exact
-//    gradient fills on Crank's time scale (METHOD-NOTES 2.8; the force (27) of
+//    gradient fills on Crank's time scale (docs/method_notes.md#effective-diffusivity; the force (27) of
 //    the explicit scheme lags far more).
 // Crank 6.20 summed here independently of otfp::analytic.
 double crank_sphere_series(double t) {

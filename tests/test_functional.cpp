@@ -313,7 +313,7 @@ TEST(FunctionalAccelerated, ResultsDoNotDependOnThreadCount) {
   }
 }
 
-// A single free blob: dF/ds = 0 gives c_w (s - s^k) s = kappa d dt (METHOD-NOTES 2.3).
+// A single free blob: dF/ds = 0 gives c_w (s - s^k) s = kappa d dt (docs/method_notes.md#width-metric).
 TEST(SingleBlob, BruteForceWidthMinimiserSatisfiesClosedForm) {
   for (int dim = 1; dim <= 3; ++dim) {
     for (WidthMetric metric : {WidthMetric::AsPrinted, WidthMetric::ExactGaussian}) {

@@ -1,5 +1,5 @@
 #pragma once
-// Analytic references (METHOD-NOTES 4).
+// Analytic references (docs/method_notes.md#analytic-references).
 
 namespace otfp::analytic {
 

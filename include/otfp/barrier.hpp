@@ -1,5 +1,5 @@
 #pragma once
-// One-sided barrier Psi(x) = C/2 dist(x, Omega')^2 of (20) (METHOD-NOTES 2.4).
+// One-sided barrier Psi(x) = C/2 dist(x, Omega')^2 of (20) (docs/method_notes.md#one-sided-barrier).
 // dist is zero inside Omega', so the barrier never pulls interior particles
 // towards the wall. Omega' is Omega inflated by b over the chosen patches
 // (the Dirichlet buffer B^ext of Sec. 4.2): a point whose closest boundary

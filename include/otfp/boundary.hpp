@@ -4,7 +4,7 @@
 // Each boundary patch A_l gets a kind. Dirichlet patches hold the density g in
 // B_l^int by inserting/deleting particles there; Neumann patches exchange the
 // mass of the prescribed outward flux f with B_l, carrying the fractional
-// remainder to the next step (METHOD-NOTES 2.6); no-flux patches only have the
+// remainder to the next step (docs/method_notes.md#neumann-carry); no-flux patches only have the
 // barrier. Every inserted and removed particle is counted per patch.
 //
 // Options beyond the papers (issue 10; the defaults are the papers' treatment):
@@ -60,7 +60,7 @@ ReservoirProfile reservoir_profile_from_string(const std::string& s);  // "unifo
 // Scalar boundary data g(x, t) (density) or f(x, t) (outward mass flux per unit area and time).
 using BoundaryData = std::function<double(const Vec3& x, double t)>;
 
-// How the Dirichlet target mass of B_l^int is computed (METHOD-NOTES 2.7).
+// How the Dirichlet target mass of B_l^int is computed (docs/method_notes.md#dirichlet-target).
 enum class DirichletTarget {
   CellIntegral,  // integral of g over the cell B_l^int itself (default)
   PaperEq34      // (34): b times the integral of g over A_l (over-fills curved layers)

@@ -19,7 +19,7 @@
 
 namespace otfp {
 
-// Width metric coefficient c_w of the transport term (METHOD-NOTES 2.3).
+// Width metric coefficient c_w of the transport term (docs/method_notes.md#width-metric).
 enum class WidthMetric {
   AsPrinted,      // c_w = 1, as printed in (28) and [2023] (15)
   ExactGaussian   // c_w = d/2, the exact 2-Wasserstein distance between isotropic Gaussians
@@ -58,7 +58,7 @@ class TransportTerm {
   double dt_, c_w_;
 };
 
-// Entropy term E with the exact gradient in two pair sweeps (METHOD-NOTES 1):
+// Entropy term E with the exact gradient in two pair sweeps (docs/method_notes.md#exact-gradient):
 // the first gives rho_p and grad rho, the second gathers term 2 with the 1/rho_p factors.
 class EntropyTerm {
  public:

@@ -2,7 +2,7 @@
 // Cell list (O(n) build) and Verlet neighbour list with a skin.
 //
 // The cut-off comes from a kernel tolerance, not from 1/sqrt(beta)
-// (METHOD-NOTES 2.5): exp(-beta r_c^2) = tol, i.e. r_c = s sqrt(ln(1/tol))
+// (docs/method_notes.md#neighbour-cutoff): exp(-beta r_c^2) = tol, i.e. r_c = s sqrt(ln(1/tol))
 // with s = beta^-1/2. The pair (p, q) enters through w_q(x_p), which uses
 // beta_q, and through w_p(x_q), which uses beta_p; so the pair's radius is
 // the cut-off of the wider of the two plus the skin,

@@ -1,7 +1,7 @@
 #pragma once
 // Time steppers for the diffusive fractional step: the implicit variational
 // step (minimise (28) with Ceres or NLopt) and the explicit baselines of
-// Algorithm 1 (sign corrected, METHOD-NOTES 2.1).
+// Algorithm 1 (sign corrected, docs/method_notes.md#explicit-sign).
 #include <functional>
 #include <limits>
 #include <string>
