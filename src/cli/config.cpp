@@ -5,10 +5,18 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <functional>
+#include <initializer_list>
 #include <limits>
 #include <set>
 #include <sstream>
+#include <type_traits>
+#include <variant>
 #include <toml++/toml.h>
+
+#include "otfp/boundary.hpp"
+#include "otfp/minimizer.hpp"
+#include "otfp/stepper.hpp"
 
 namespace otfp::app {
 
@@ -19,113 +27,391 @@ ConfigError::ConfigError(const std::string& key, const std::string& message)
 
 namespace {
 
-// ------------------------------------------------------------------ schema
+namespace fs = std::filesystem;
+
+// ------------------------------------------------------------------ values
 
 enum class Kind { Int, Float, String, Point };
 
-struct KeySpec {
-  std::string path;                  // "run.dim", "boundary[].kind", "domain.subpatch[].name"
-  Kind kind;
-  std::vector<std::string> choices;  // allowed strings (empty: any)
+// The value of one key: absent (an optional key not given), an integer, a
+// number, a string or a point.
+using Value = std::variant<std::monostate, std::int64_t, double, std::string, Vec3>;
+
+std::string format_double(double v) {
+  if (std::isnan(v)) return "nan";
+  if (std::isinf(v)) return v > 0 ? "inf" : "-inf";
+  return fmt::format("{}", v);
+}
+std::string shown(double v) { return format_double(v); }
+std::string shown(const Vec3& v) {
+  return "[" + format_double(v[0]) + ", " + format_double(v[1]) + ", " + format_double(v[2]) + "]";
+}
+std::string quoted(const std::string& s) { return "\"" + s + "\""; }
+std::string shown(const Value& v) {
+  if (const auto* i = std::get_if<std::int64_t>(&v)) return std::to_string(*i);
+  if (const auto* d = std::get_if<double>(&v)) return shown(*d);
+  if (const auto* s = std::get_if<std::string>(&v)) return quoted(*s);
+  if (const auto* p = std::get_if<Vec3>(&v)) return shown(*p);
+  return "(absent)";
+}
+
+// Required keys of an array of tables are "missing" while empty (strings) or NaN (numbers).
+bool is_missing(const Value& v) {
+  if (const auto* s = std::get_if<std::string>(&v)) return s->empty();
+  if (const auto* d = std::get_if<double>(&v)) return std::isnan(*d);
+  return std::holds_alternative<std::monostate>(v);
+}
+
+// Member types <-> Value.
+template <class T> struct KindOf;
+template <> struct KindOf<int> { static constexpr Kind value = Kind::Int; };
+template <> struct KindOf<std::int64_t> { static constexpr Kind value = Kind::Int; };
+template <> struct KindOf<double> { static constexpr Kind value = Kind::Float; };
+template <> struct KindOf<std::string> { static constexpr Kind value = Kind::String; };
+template <> struct KindOf<Vec3> { static constexpr Kind value = Kind::Point; };
+template <class T> struct KindOf<std::optional<T>> { static constexpr Kind value = KindOf<T>::value; };
+
+template <class T> struct IsOptional : std::false_type {};
+template <class T> struct IsOptional<std::optional<T>> : std::true_type {};
+
+Value to_value(int v) { return std::int64_t{v}; }
+Value to_value(std::int64_t v) { return v; }
+Value to_value(double v) { return v; }
+Value to_value(const std::string& v) { return v; }
+Value to_value(const Vec3& v) { return v; }
+template <class T>
+Value to_value(const std::optional<T>& v) {
+  return v ? to_value(*v) : Value{};
+}
+
+// `v` has the kind of the member (the parser checked it).
+void assign(const Value& v, std::int64_t& out, const std::string&) { out = std::get<std::int64_t>(v); }
+void assign(const Value& v, double& out, const std::string&) { out = std::get<double>(v); }
+void assign(const Value& v, std::string& out, const std::string&) { out = std::get<std::string>(v); }
+void assign(const Value& v, Vec3& out, const std::string&) { out = std::get<Vec3>(v); }
+void assign(const Value& v, int& out, const std::string& display) {
+  const std::int64_t i = std::get<std::int64_t>(v);
+  if (i < std::numeric_limits<int>::min() || i > std::numeric_limits<int>::max())
+    throw ConfigError(display, std::to_string(i), "out of range");
+  out = static_cast<int>(i);
+}
+template <class T>
+void assign(const Value& v, std::optional<T>& out, const std::string& display) {
+  if (std::holds_alternative<std::monostate>(v)) {
+    out.reset();
+    return;
+  }
+  T x{};
+  assign(v, x, display);
+  out = x;
+}
+
+// ------------------------------------------------------------------ rules
+
+// The range rule of one key: lo < v (or <=) and v < hi (or <=). The message
+// names the side that is broken ("must be > 0", "must be <= 1000") unless
+// `text` is the message for either side; `above` replaces the upper one.
+struct Rule {
+  double lo = -std::numeric_limits<double>::infinity();
+  double hi = std::numeric_limits<double>::infinity();
+  bool lo_open = false, hi_open = false;
+  std::string text;
+  std::string above;
+  std::string doc;                          // short form (docs/configuration.md); generated when empty
+  std::function<bool(const Config&)> when;  // the rule holds only where this is true (default: always)
+
+  bool has_lo() const { return std::isfinite(lo); }
+  bool has_hi() const { return std::isfinite(hi); }
+  bool empty() const { return !has_lo() && !has_hi(); }
+  std::string lower_message() const { return fmt::format("must be {} {}", lo_open ? ">" : ">=", format_double(lo)); }
+  std::string upper_message() const {
+    return above.empty() ? fmt::format("must be {} {}", hi_open ? "<" : "<=", format_double(hi)) : above;
+  }
+  std::string short_form() const {
+    if (!doc.empty()) return doc;
+    if (has_lo() && has_hi())
+      return fmt::format("in {}{}, {}{}", lo_open ? "(" : "[", format_double(lo), format_double(hi), hi_open ? ")" : "]");
+    if (has_lo()) return fmt::format("{} {}", lo_open ? ">" : ">=", format_double(lo));
+    if (has_hi()) return fmt::format("{} {}", hi_open ? "<" : "<=", format_double(hi));
+    return "";
+  }
+  // "" if x obeys the rule, else the message.
+  std::string broken_by(double x) const {
+    const bool low = has_lo() && !(lo_open ? x > lo : x >= lo);
+    const bool high = has_hi() && !(hi_open ? x < hi : x <= hi);
+    if (!low && !high) return "";
+    if (!text.empty()) return text;
+    return low ? lower_message() : upper_message();
+  }
 };
 
-const std::vector<KeySpec>& schema() {
-  static const std::vector<KeySpec> keys = {
-      {"run.dim", Kind::Int, {}},
-      {"run.t_end", Kind::Float, {}},
-      {"run.dt", Kind::Float, {}},
-      {"run.dt_factor", Kind::Float, {}},
-      {"run.seed", Kind::Int, {}},
-      {"run.max_steps", Kind::Int, {}},
-      {"run.dt_mode", Kind::String, {"fixed", "adaptive"}},
-      {"run.time_tolerance", Kind::Float, {}},
-      {"run.dt_min", Kind::Float, {}},
-      {"run.dt_max", Kind::Float, {}},
-      {"run.vtk_interval", Kind::Int, {}},
-      {"run.threads", Kind::Int, {}},
-      {"domain.type", Kind::String, {"ball", "box", "cylinder", "periodic_box", "square_pipe_obstacle", "free"}},
-      {"domain.center", Kind::Point, {}},
-      {"domain.radius", Kind::Float, {}},
-      {"domain.lo", Kind::Point, {}},
-      {"domain.hi", Kind::Point, {}},
-      {"domain.end_a", Kind::Point, {}},
-      {"domain.end_b", Kind::Point, {}},
-      {"domain.obstacle_center", Kind::Point, {}},
-      {"domain.obstacle_radius", Kind::Float, {}},
-      {"domain.obstacle_axis", Kind::String, {"x", "y", "z"}},
-      {"domain.subpatch[].name", Kind::String, {}},
-      {"domain.subpatch[].on", Kind::String, {}},
-      {"domain.subpatch[].center", Kind::Point, {}},
-      {"domain.subpatch[].radius", Kind::Float, {}},
-      {"particles.n_inf", Kind::Int, {}},
-      {"particles.mass", Kind::Float, {}},
-      {"particles.spacing_rule", Kind::String, {"cube", "sphere_radius"}},
-      {"particles.beta_factor", Kind::Float, {}},
-      {"particles.width_exponent", Kind::Float, {}},
-      {"particles.width_reference_n", Kind::Int, {}},
-      {"particles.layer_b", Kind::Float, {}},
-      {"particles.length_L", Kind::Float, {}},
-      {"particles.dirichlet_target", Kind::String, {"cell_integral", "paper_eq34"}},
-      {"particles.fill", Kind::String, {"empty", "uniform", "gaussian", "cosine"}},
-      {"particles.fill_arrangement", Kind::String, {"random", "lattice"}},
-      {"particles.fill_amplitude", Kind::Float, {}},
-      {"particles.fill_mode", Kind::Int, {}},
-      {"particles.fill_count", Kind::Int, {}},
-      {"particles.fill_mass", Kind::Float, {}},
-      {"particles.fill_center", Kind::Point, {}},
-      {"particles.fill_sigma", Kind::Float, {}},
-      {"physics.kappa", Kind::Float, {}},
-      {"physics.rho_ref", Kind::Float, {}},
-      {"physics.velocity", Kind::Point, {}},
-      {"physics.source_rate", Kind::Float, {}},
-      {"boundary[].patch", Kind::String, {}},
-      {"boundary[].kind", Kind::String, {"dirichlet", "neumann", "no_flux"}},
-      {"boundary[].value", Kind::Float, {}},
-      {"boundary[].t_start", Kind::Float, {}},
-      {"boundary[].t_end", Kind::Float, {}},
-      {"solver.stepper", Kind::String, {"implicit", "explicit"}},
-      {"solver.backend", Kind::String, {"ceres", "nlopt"}},
-      {"solver.algorithm", Kind::String, {"lbfgs", "bfgs", "nonlinear_cg", "tnewton", "var2", "mma"}},
-      {"solver.explicit_scheme", Kind::String, {"euler27", "rk4", "euler_exact"}},
-      {"solver.width_mode", Kind::String, {"fixed", "per_particle"}},
-      {"solver.width_metric", Kind::String, {"as_printed", "exact"}},
-      {"solver.time_scheme", Kind::String, {"euler", "bdf2"}},
-      {"solver.predictor", Kind::String, {"none", "extrapolate", "damped"}},
-      {"solver.error_smoothing", Kind::Float, {}},
-      {"solver.displacement_tolerance", Kind::Float, {}},
-      {"solver.relative_tolerance", Kind::Float, {}},
-      {"solver.max_iterations", Kind::Int, {}},
-      {"solver.max_evaluations", Kind::Int, {}},
-      {"solver.lbfgs_memory", Kind::Int, {}},
-      {"solver.max_halvings", Kind::Int, {}},
-      {"solver.energy_tolerance", Kind::Float, {}},
-      {"solver.barrier_factor", Kind::Float, {}},
-      {"solver.barrier_stiffness", Kind::Float, {}},
-      {"solver.kernel_tolerance", Kind::Float, {}},
-      {"solver.skin_factor", Kind::Float, {}},
-      {"treatment.preset", Kind::String, {"converging", "papers"}},
-      {"treatment.no_flux", Kind::String, {"barrier", "images"}},
-      {"treatment.dirichlet", Kind::String, {"layer", "reservoir"}},
-      {"treatment.reservoir_width", Kind::Float, {}},
-      {"treatment.reservoir_sublayers", Kind::Int, {}},
-      {"treatment.reservoir_profile", Kind::String, {"uniform", "odd"}},
-      {"treatment.neumann_outflow", Kind::String, {"layer", "nearest"}},
-      {"treatment.stranded", Kind::String, {"keep", "absorb"}},
-      {"diagnostics.center", Kind::Point, {}},
-      {"diagnostics.M_inf", Kind::Float, {}},
-      {"diagnostics.J_inf", Kind::Float, {}},
-      {"diagnostics.reference", Kind::String, {"none", "crank_sphere", "crank_slab", "free_space", "cosine_mode"}},
-      {"diagnostics.reference_radius", Kind::Float, {}},
-      {"diagnostics.reference_length", Kind::Float, {}},
+Rule greater(double lo) {
+  Rule r;
+  r.lo = lo;
+  r.lo_open = true;
+  return r;
+}
+Rule at_least(double lo) {
+  Rule r;
+  r.lo = lo;
+  return r;
+}
+// [lo, hi] with "(" / ")" for open ends, e.g. interval('(', 0, 2, ']', "must be in (0, 2] ...").
+Rule interval(char open, double lo, double hi, char close, std::string text = "") {
+  Rule r;
+  r.lo = lo;
+  r.hi = hi;
+  r.lo_open = open == '(';
+  r.hi_open = close == ')';
+  r.text = std::move(text);
+  return r;
+}
+
+// ------------------------------------------------------------------ the table
+
+// Where a key's member lives: a section of Config, or entry i of an array of tables.
+enum class Scope { Section, SubPatch, Boundary };
+
+template <class O> struct Owner;
+template <> struct Owner<RunSection> {
+  static constexpr Scope scope = Scope::Section;
+  template <class C> static auto& of(C& c, std::size_t) { return c.run; }
+};
+template <> struct Owner<DomainSection> {
+  static constexpr Scope scope = Scope::Section;
+  template <class C> static auto& of(C& c, std::size_t) { return c.domain; }
+};
+template <> struct Owner<SubPatchSpec> {
+  static constexpr Scope scope = Scope::SubPatch;
+  template <class C> static auto& of(C& c, std::size_t i) { return c.domain.subpatches[i]; }
+};
+template <> struct Owner<ParticlesSection> {
+  static constexpr Scope scope = Scope::Section;
+  template <class C> static auto& of(C& c, std::size_t) { return c.particles; }
+};
+template <> struct Owner<PhysicsSection> {
+  static constexpr Scope scope = Scope::Section;
+  template <class C> static auto& of(C& c, std::size_t) { return c.physics; }
+};
+template <> struct Owner<BoundarySpec> {
+  static constexpr Scope scope = Scope::Boundary;
+  template <class C> static auto& of(C& c, std::size_t i) { return c.boundary[i]; }
+};
+template <> struct Owner<SolverSection> {
+  static constexpr Scope scope = Scope::Section;
+  template <class C> static auto& of(C& c, std::size_t) { return c.solver; }
+};
+template <> struct Owner<TreatmentSection> {
+  static constexpr Scope scope = Scope::Section;
+  template <class C> static auto& of(C& c, std::size_t) { return c.treatment; }
+};
+template <> struct Owner<DiagnosticsSection> {
+  static constexpr Scope scope = Scope::Section;
+  template <class C> static auto& of(C& c, std::size_t) { return c.diagnostics; }
+};
+
+// One key: its path, kind, member of Config, default, choices and rule.
+struct Field {
+  std::string path;     // "run.dim", "boundary[].kind", "domain.subpatch[].name"
+  std::string section;  // "run", "boundary", "domain" (subpatches: the domain's array "subpatch")
+  std::string key;      // "dim", "kind", "name"
+  Scope scope = Scope::Section;
+  Kind kind = Kind::Float;
+  bool optional = false;             // a std::optional member: absent unless given
+  std::string required;              // array keys that must be given: the rule shown when missing
+  std::vector<std::string> choices;  // allowed strings (empty: any)
+  Rule rule;
+  Value fallback;  // the member's in-class default
+  std::function<Value(const Config&, std::size_t)> get;
+  std::function<void(Config&, std::size_t, const Value&, const std::string&)> set;
+  std::function<bool(const Config&, std::size_t)> in_toml;  // to_toml writes the key only where true (default: always)
+
+  Field& with(Rule r) {
+    rule = std::move(r);
+    return *this;
+  }
+  Field& one_of(std::vector<std::string> c) {
+    choices = std::move(c);
+    return *this;
+  }
+  Field& needed(std::string rule_when_missing) {
+    required = std::move(rule_when_missing);
+    return *this;
+  }
+  Field& written_if(std::function<bool(const Config&, std::size_t)> f) {
+    in_toml = std::move(f);
+    return *this;
+  }
+};
+
+template <class O, class M>
+Field key(std::string path, M O::*member) {
+  Field f;
+  f.path = std::move(path);
+  f.scope = Owner<O>::scope;
+  const std::size_t dot = f.path.rfind('.');
+  f.key = f.path.substr(dot + 1);
+  f.section = f.path.substr(0, f.path.find_first_of(".["));
+  f.kind = KindOf<M>::value;
+  f.optional = IsOptional<M>::value;
+  f.fallback = to_value(O{}.*member);
+  f.get = [member](const Config& c, std::size_t i) { return to_value(Owner<O>::of(c, i).*member); };
+  f.set = [member](Config& c, std::size_t i, const Value& v, const std::string& display) {
+    assign(v, Owner<O>::of(c, i).*member, display);
   };
-  return keys;
+  return f;
+}
+
+// The names of a library enum, in the order given.
+template <class E>
+std::vector<std::string> names(std::initializer_list<E> values) {
+  std::vector<std::string> out;
+  for (E e : values) out.push_back(to_string(e));
+  return out;
+}
+
+bool domain_is(const Config& c, std::initializer_list<const char*> types) {
+  for (const char* t : types)
+    if (c.domain.type == t) return true;
+  return false;
+}
+
+const std::vector<Field>& fields() {
+  static const std::vector<Field> table = [] {
+    Rule dim = interval('[', 1, 3, ']', "must be 1, 2 or 3");
+    dim.doc = "1, 2 or 3";
+    Rule radius = greater(0);
+    radius.when = [](const Config& c) { return domain_is(c, {"ball", "cylinder"}); };
+    Rule obstacle_radius = greater(0);
+    obstacle_radius.when = [](const Config& c) { return domain_is(c, {"square_pipe_obstacle"}); };
+    Rule solver_cap = at_least(1);  // the library's caps are int
+    solver_cap.hi = std::numeric_limits<int>::max();
+    solver_cap.above = "out of range";
+    solver_cap.doc = ">= 1";
+    Rule reservoir_width = interval('(', 0, 10, ']');
+    reservoir_width.above = "must be <= 10 (kernel cut-offs)";
+    const auto neumann_only = [](const Config& c, std::size_t i) { return c.boundary[i].kind == "neumann"; };
+    // fill = "file": the file gives the particles, the keys of the other fills do not apply.
+    const auto not_from_file = [](const Config& c, std::size_t) { return c.particles.fill != "file"; };
+
+    return std::vector<Field>{
+        key("run.dim", &RunSection::dim).with(dim),
+        key("run.t_end", &RunSection::t_end).with(greater(0)),
+        key("run.dt", &RunSection::dt).with(greater(0)),
+        key("run.dt_factor", &RunSection::dt_factor).with(greater(0)),
+        key("run.seed", &RunSection::seed).with(at_least(0)),
+        key("run.max_steps", &RunSection::max_steps).with(at_least(0)),
+        key("run.dt_mode", &RunSection::dt_mode).one_of({"fixed", "adaptive"}),
+        key("run.time_tolerance", &RunSection::time_tolerance).with(greater(0)),
+        key("run.dt_min", &RunSection::dt_min).with(at_least(0)),
+        key("run.dt_max", &RunSection::dt_max).with(greater(0)),
+        key("run.vtk_interval", &RunSection::vtk_interval).with(at_least(0)),
+        key("run.checkpoint_interval", &RunSection::checkpoint_interval).with(at_least(0)),
+        key("run.threads", &RunSection::threads).with(interval('[', 0, 4096, ']', "must be in [0, 4096] (0: OpenMP default)")),
+        key("domain.type", &DomainSection::type)
+            .one_of({"ball", "box", "cylinder", "periodic_box", "square_pipe_obstacle", "free"}),
+        key("domain.center", &DomainSection::center),
+        key("domain.radius", &DomainSection::radius).with(radius),
+        key("domain.lo", &DomainSection::lo),
+        key("domain.hi", &DomainSection::hi),
+        key("domain.end_a", &DomainSection::end_a),
+        key("domain.end_b", &DomainSection::end_b),
+        key("domain.obstacle_center", &DomainSection::obstacle_center),
+        key("domain.obstacle_radius", &DomainSection::obstacle_radius).with(obstacle_radius),
+        key("domain.obstacle_axis", &DomainSection::obstacle_axis).one_of({"x", "y", "z"}),
+        key("domain.subpatch[].name", &SubPatchSpec::name).needed("required, a non-empty patch name"),
+        key("domain.subpatch[].on", &SubPatchSpec::on).needed("required: the name of the patch it lies on"),
+        key("domain.subpatch[].center", &SubPatchSpec::center),
+        key("domain.subpatch[].radius", &SubPatchSpec::radius).needed("required, > 0").with(greater(0)),
+        key("particles.n_inf", &ParticlesSection::n_inf).with(at_least(1)),
+        key("particles.mass", &ParticlesSection::mass).with(greater(0)),
+        key("particles.spacing_rule", &ParticlesSection::spacing_rule).one_of({"cube", "sphere_radius"}),
+        key("particles.beta_factor", &ParticlesSection::beta_factor).with(greater(0)),
+        key("particles.width_exponent", &ParticlesSection::width_exponent)
+            .with(interval('(', 0, 2, ']',
+                           "must be in (0, 2] (s = s_rule(dr) (dr / dr_ref)^(q - 1); 1: the papers' fixed beta dr^2)")),
+        key("particles.width_reference_n", &ParticlesSection::width_reference_n).with(at_least(1)),
+        key("particles.layer_b", &ParticlesSection::layer_b).with(at_least(0)),
+        key("particles.length_L", &ParticlesSection::length_L).with(at_least(0)),
+        key("particles.dirichlet_target", &ParticlesSection::dirichlet_target).one_of({"cell_integral", "paper_eq34"}),
+        key("particles.fill", &ParticlesSection::fill).one_of({"empty", "uniform", "gaussian", "cosine", "file"}),
+        key("particles.fill_file", &ParticlesSection::fill_file),
+        key("particles.fill_arrangement", &ParticlesSection::fill_arrangement)
+            .one_of({"random", "lattice"})
+            .written_if(not_from_file),
+        key("particles.fill_amplitude", &ParticlesSection::fill_amplitude)
+            .with(interval('[', 0, 1, ')', "must be in [0, 1) (density 1 + a cos(k x) > 0)"))
+            .written_if(not_from_file),
+        key("particles.fill_mode", &ParticlesSection::fill_mode).with(at_least(1)).written_if(not_from_file),
+        key("particles.fill_count", &ParticlesSection::fill_count).with(at_least(0)),
+        key("particles.fill_mass", &ParticlesSection::fill_mass).with(at_least(0)),
+        key("particles.fill_center", &ParticlesSection::fill_center),
+        key("particles.fill_sigma", &ParticlesSection::fill_sigma).with(greater(0)).written_if(not_from_file),
+        key("physics.kappa", &PhysicsSection::kappa).with(greater(0)),
+        key("physics.rho_ref", &PhysicsSection::rho_ref).with(greater(0)),
+        key("physics.velocity", &PhysicsSection::velocity),
+        key("physics.source_rate", &PhysicsSection::source_rate),
+        key("boundary[].patch", &BoundarySpec::patch).needed("required: the name of a domain patch"),
+        key("boundary[].kind", &BoundarySpec::kind)
+            .one_of(names({PatchKind::Dirichlet, PatchKind::Neumann, PatchKind::NoFlux}))
+            .needed("required: one of dirichlet, neumann, no_flux"),
+        key("boundary[].value", &BoundarySpec::value),
+        key("boundary[].t_start", &BoundarySpec::t_start).with(at_least(0)).written_if(neumann_only),
+        key("boundary[].t_end", &BoundarySpec::t_end),
+        key("solver.stepper", &SolverSection::stepper).one_of({"implicit", "explicit"}),
+        key("solver.backend", &SolverSection::backend).one_of(names({Backend::Ceres, Backend::Nlopt})),
+        key("solver.algorithm", &SolverSection::algorithm)
+            .one_of(names({Algorithm::Lbfgs, Algorithm::Bfgs, Algorithm::NonlinearCg, Algorithm::TruncatedNewton,
+                           Algorithm::Var2, Algorithm::Mma})),
+        key("solver.explicit_scheme", &SolverSection::explicit_scheme)
+            .one_of(names({ExplicitScheme::EulerForce27, ExplicitScheme::Rk4Force27, ExplicitScheme::EulerExactGradient})),
+        key("solver.width_mode", &SolverSection::width_mode).one_of(names({WidthMode::Fixed, WidthMode::PerParticle})),
+        key("solver.width_metric", &SolverSection::width_metric).one_of({"as_printed", "exact"}),
+        key("solver.time_scheme", &SolverSection::time_scheme).one_of(names({TimeScheme::Euler, TimeScheme::Bdf2})),
+        key("solver.predictor", &SolverSection::predictor)
+            .one_of(names({Predictor::None, Predictor::Extrapolate, Predictor::Damped})),
+        key("solver.error_smoothing", &SolverSection::error_smoothing)
+            .with(interval('[', 0, 3, ']', "must be in [0, 3] widths (the neighbour list reaches about 4.3 widths)")),
+        key("solver.displacement_tolerance", &SolverSection::displacement_tolerance).with(greater(0)),
+        key("solver.relative_tolerance", &SolverSection::relative_tolerance)
+            .with(interval('[', 0, 1, ']', "must be in [0, 1] (0: absolute rule only)")),
+        key("solver.max_iterations", &SolverSection::max_iterations).with(solver_cap),
+        key("solver.max_evaluations", &SolverSection::max_evaluations).with(solver_cap),
+        key("solver.lbfgs_memory", &SolverSection::lbfgs_memory).with(interval('[', 1, 1000, ']')),
+        key("solver.max_halvings", &SolverSection::max_halvings).with(interval('[', 0, 20, ']', "must be in [0, 20]")),
+        key("solver.energy_tolerance", &SolverSection::energy_tolerance).with(at_least(0)),
+        key("solver.barrier_factor", &SolverSection::barrier_factor).with(greater(0)),
+        key("solver.barrier_stiffness", &SolverSection::barrier_stiffness).with(greater(0)),
+        key("solver.kernel_tolerance", &SolverSection::kernel_tolerance).with(interval('(', 0, 1, ')', "must be in (0, 1)")),
+        key("solver.skin_factor", &SolverSection::skin_factor).with(greater(0)),
+        key("treatment.preset", &TreatmentSection::preset).one_of({"converging", "papers"}),
+        key("treatment.no_flux", &TreatmentSection::no_flux).one_of({"barrier", "images"}),
+        key("treatment.dirichlet", &TreatmentSection::dirichlet)
+            .one_of(names({DirichletMode::Layer, DirichletMode::Reservoir})),
+        key("treatment.reservoir_width", &TreatmentSection::reservoir_width).with(reservoir_width),
+        key("treatment.reservoir_sublayers", &TreatmentSection::reservoir_sublayers)
+            .with(interval('[', 0, 1000, ']', "must be in [0, 1000] (0: about one spacing per sublayer)")),
+        key("treatment.reservoir_profile", &TreatmentSection::reservoir_profile)
+            .one_of(names({ReservoirProfile::Uniform, ReservoirProfile::Odd})),
+        key("treatment.neumann_outflow", &TreatmentSection::neumann_outflow).one_of({"layer", "nearest"}),
+        key("treatment.stranded", &TreatmentSection::stranded).one_of({"keep", "absorb"}),
+        key("diagnostics.center", &DiagnosticsSection::center),
+        key("diagnostics.M_inf", &DiagnosticsSection::M_inf).with(greater(0)),
+        key("diagnostics.J_inf", &DiagnosticsSection::J_inf).with(greater(0)),
+        key("diagnostics.reference", &DiagnosticsSection::reference)
+            .one_of({"none", "crank_sphere", "crank_slab", "free_space", "cosine_mode"}),
+        key("diagnostics.reference_radius", &DiagnosticsSection::reference_radius).with(greater(0)),
+        key("diagnostics.reference_length", &DiagnosticsSection::reference_length).with(greater(0)),
+    };
+  }();
+  return table;
 }
 
 const std::vector<std::string> kSections = {"run", "domain", "particles", "physics", "boundary", "solver",
                                             "treatment", "diagnostics"};
 
-const KeySpec* find_spec(const std::string& path) {
-  for (const KeySpec& k : schema())
+const Field* find_spec(const std::string& path) {
+  for (const Field& k : fields())
     if (k.path == path) return &k;
   return nullptr;
 }
@@ -155,7 +441,7 @@ std::size_t edit_distance(const std::string& a, const std::string& b) {
 std::string unknown_key_rule(const std::string& prefix, const std::string& key) {
   std::string best;
   std::size_t best_d = 3;  // suggest only near misses
-  for (const KeySpec& k : schema()) {
+  for (const Field& k : fields()) {
     if (k.path.compare(0, prefix.size(), prefix) != 0) continue;
     const std::string rest = k.path.substr(prefix.size());
     if (rest.find('.') != std::string::npos) continue;
@@ -166,12 +452,6 @@ std::string unknown_key_rule(const std::string& prefix, const std::string& key) 
     }
   }
   return best.empty() ? std::string("unknown key") : "unknown key (did you mean '" + best + "'?)";
-}
-
-std::string format_double(double v) {
-  if (std::isnan(v)) return "nan";
-  if (std::isinf(v)) return v > 0 ? "inf" : "-inf";
-  return fmt::format("{}", v);
 }
 
 std::string format_node(const toml::node& n) {
@@ -188,7 +468,7 @@ std::string format_node(const toml::node& n) {
   return "(a date or time)";
 }
 
-std::string kind_rule(const KeySpec& spec) {
+std::string kind_rule(const Field& spec) {
   switch (spec.kind) {
     case Kind::Int: return "must be an integer";
     case Kind::Float: return "must be a number";
@@ -200,7 +480,7 @@ std::string kind_rule(const KeySpec& spec) {
 }
 
 // Checks one value against its key's kind; `key` is the display name.
-void check_kind(const toml::node& n, const KeySpec& spec, const std::string& key) {
+void check_kind(const toml::node& n, const Field& spec, const std::string& key) {
   const std::string shown = format_node(n);
   switch (spec.kind) {
     case Kind::Int:
@@ -243,7 +523,7 @@ void check_table(const toml::table& t, const std::string& prefix, const std::str
         check_table(*a->get(i)->as_table(), "domain.subpatch[].", fmt::format("domain.subpatch[{}].", i));
       continue;
     }
-    const KeySpec* spec = find_spec(prefix + key);
+    const Field* spec = find_spec(prefix + key);
     if (!spec) throw ConfigError(display, format_node(v), unknown_key_rule(prefix, key));
     check_kind(v, *spec, display);
   }
@@ -369,7 +649,7 @@ void apply_override(toml::table& root, const std::string& assignment) {
   } else {
     throw ConfigError(path, "\"" + text + "\"", "unknown section (allowed: " + join(kSections) + ")");
   }
-  const KeySpec* spec = find_spec(spec_path);
+  const Field* spec = find_spec(spec_path);
   if (!spec) {
     const std::string prefix = spec_path.substr(0, spec_path.rfind('.') + 1);
     throw ConfigError(display, "\"" + text + "\"", unknown_key_rule(prefix, spec_path.substr(prefix.size())));
@@ -406,49 +686,66 @@ void apply_override(toml::table& root, const std::string& assignment) {
 
 // ------------------------------------------------------------------ typed read
 
-// Reads the keys of one (already kind-checked) table.
-class Reader {
- public:
-  Reader(const toml::table* t, std::string display_prefix) : t_(t), prefix_(std::move(display_prefix)) {}
+const toml::table* section(const toml::table& root, const std::string& name) { return root[name].as_table(); }
 
-  template <class T>
-  void get(const char* key, T& out) const {
-    if (!t_) return;
-    const toml::node* n = t_->get(key);
-    if (!n) return;
-    read(*n, key, out);
+// A (kind-checked) TOML value as the Value of its key.
+Value node_value(const toml::node& n, Kind kind) {
+  switch (kind) {
+    case Kind::Int: return n.as_integer()->get();
+    case Kind::Float: return n.value<double>().value();
+    case Kind::String: return n.as_string()->get();
+    case Kind::Point: {
+      Vec3 p = Vec3::Zero();  // missing components are 0
+      const toml::array& a = *n.as_array();
+      for (std::size_t i = 0; i < a.size() && i < 3; ++i) p[static_cast<int>(i)] = a.get(i)->value<double>().value();
+      return p;
+    }
   }
-  template <class T>
-  void get(const char* key, std::optional<T>& out) const {
-    if (!t_) return;
-    const toml::node* n = t_->get(key);
-    if (!n) return;
-    T v{};
-    read(*n, key, v);
-    out = v;
-  }
-  void get(const char* key, int& out) const {
-    std::int64_t v = out;
-    get(key, v);
-    if (v < std::numeric_limits<int>::min() || v > std::numeric_limits<int>::max())
-      throw ConfigError(prefix_ + key, std::to_string(v), "out of range");
-    out = static_cast<int>(v);
-  }
+  return {};
+}
 
- private:
-  void read(const toml::node& n, const char*, std::int64_t& out) const { out = n.as_integer()->get(); }
-  void read(const toml::node& n, const char*, double& out) const { out = n.value<double>().value(); }
-  void read(const toml::node& n, const char*, std::string& out) const { out = n.as_string()->get(); }
-  void read(const toml::node& n, const char*, Vec3& out) const {
-    out = Vec3::Zero();
-    const toml::array& a = *n.as_array();
-    for (std::size_t i = 0; i < a.size() && i < 3; ++i) out[static_cast<int>(i)] = a.get(i)->value<double>().value();
+// How many entries a key of this scope has in `c` (a section key: one).
+std::size_t entries(const Config& c, Scope scope) {
+  switch (scope) {
+    case Scope::Section: return 1;
+    case Scope::SubPatch: return c.domain.subpatches.size();
+    case Scope::Boundary: return c.boundary.size();
   }
-  const toml::table* t_;
-  std::string prefix_;
-};
+  return 0;
+}
 
-const toml::table* section(const toml::table& root, const char* name) { return root[name].as_table(); }
+// The name of key `f` of entry i in messages: "run.dim", "boundary[0].kind".
+std::string display_name(const Field& f, std::size_t i) {
+  switch (f.scope) {
+    case Scope::Section: return f.path;
+    case Scope::SubPatch: return fmt::format("domain.subpatch[{}].{}", i, f.key);
+    case Scope::Boundary: return fmt::format("boundary[{}].{}", i, f.key);
+  }
+  return f.path;
+}
+
+// The TOML table that holds the keys of `scope` entry i.
+const toml::table* table_of(const toml::table& root, const Field& f, std::size_t i) {
+  switch (f.scope) {
+    case Scope::Section: return section(root, f.section);
+    case Scope::SubPatch: {
+      const toml::table* d = section(root, "domain");
+      return d ? (*d)["subpatch"][i].as_table() : nullptr;
+    }
+    case Scope::Boundary: return root["boundary"][i].as_table();
+  }
+  return nullptr;
+}
+
+const toml::node* given(const toml::table& root, const Field& f, std::size_t i) {
+  const toml::table* t = table_of(root, f, i);
+  return t ? t->get(f.key) : nullptr;
+}
+
+void read_key(const toml::table& root, const Field& f, Config& c) {
+  for (std::size_t i = 0; i < entries(c, f.scope); ++i)
+    if (const toml::node* n = given(root, f, i)) f.set(c, i, node_value(*n, f.kind), display_name(f, i));
+}
 
 // "papers": Sec. 4.2 of the 2025 paper (barrier, the b-thick Dirichlet layer,
 // outlets that take only from B_l) and, in 3-D, the sphere-radius spacing rule
@@ -465,158 +762,64 @@ void apply_treatment_preset(Config& c) {
   c.particles.spacing_rule = papers && c.run.dim == 3 ? "sphere_radius" : "cube";
 }
 
-Config to_config(const toml::table& root) {
+// `base`: the directory relative paths are taken from.
+Config to_config(const toml::table& root, const fs::path& base) {
   Config c;
-  {
-    Reader r(section(root, "run"), "run.");
-    r.get("dim", c.run.dim);
-    r.get("t_end", c.run.t_end);
-    r.get("dt", c.run.dt);
-    r.get("dt_factor", c.run.dt_factor);
-    r.get("seed", c.run.seed);
-    r.get("max_steps", c.run.max_steps);
-    r.get("dt_mode", c.run.dt_mode);
-    r.get("time_tolerance", c.run.time_tolerance);
-    r.get("dt_min", c.run.dt_min);
-    r.get("dt_max", c.run.dt_max);
-    r.get("vtk_interval", c.run.vtk_interval);
-    r.get("threads", c.run.threads);
+  if (const toml::table* d = section(root, "domain"))
+    if (const toml::array* a = (*d)["subpatch"].as_array()) c.domain.subpatches.resize(a->size());
+  if (const toml::array* a = root["boundary"].as_array()) c.boundary.resize(a->size());
+  // treatment.preset (and run.dim, which it reads) first: the preset sets the
+  // defaults that the other keys may override, wherever they stand.
+  read_key(root, *find_spec("run.dim"), c);
+  read_key(root, *find_spec("treatment.preset"), c);
+  apply_treatment_preset(c);
+  for (const Field& f : fields()) read_key(root, f, c);
+
+  ParticlesSection& p = c.particles;
+  if (p.fill_file) {
+    fs::path file(*p.fill_file);
+    if (file.is_relative()) file = base / file;
+    p.fill_file = file.lexically_normal().string();
   }
-  {
-    const toml::table* d = section(root, "domain");
-    Reader r(d, "domain.");
-    r.get("type", c.domain.type);
-    r.get("center", c.domain.center);
-    r.get("radius", c.domain.radius);
-    r.get("lo", c.domain.lo);
-    r.get("hi", c.domain.hi);
-    r.get("end_a", c.domain.end_a);
-    r.get("end_b", c.domain.end_b);
-    r.get("obstacle_center", c.domain.obstacle_center);
-    r.get("obstacle_radius", c.domain.obstacle_radius);
-    r.get("obstacle_axis", c.domain.obstacle_axis);
-    if (d)
-      if (const toml::array* a = (*d)["subpatch"].as_array())
-        for (std::size_t i = 0; i < a->size(); ++i) {
-          Reader s(a->get(i)->as_table(), fmt::format("domain.subpatch[{}].", i));
-          SubPatchSpec sp;
-          sp.radius = std::numeric_limits<double>::quiet_NaN();  // required: NaN marks "absent"
-          s.get("name", sp.name);
-          s.get("on", sp.on);
-          s.get("center", sp.center);
-          s.get("radius", sp.radius);
-          c.domain.subpatches.push_back(sp);
-        }
-  }
-  // treatment.preset first: it sets the defaults that the keys below may override.
-  {
-    Reader r(section(root, "treatment"), "treatment.");
-    r.get("preset", c.treatment.preset);
-    apply_treatment_preset(c);
-  }
-  {
-    Reader r(section(root, "particles"), "particles.");
-    r.get("n_inf", c.particles.n_inf);
-    r.get("mass", c.particles.mass);
-    r.get("spacing_rule", c.particles.spacing_rule);
-    r.get("beta_factor", c.particles.beta_factor);
-    r.get("width_exponent", c.particles.width_exponent);
-    r.get("width_reference_n", c.particles.width_reference_n);
-    r.get("layer_b", c.particles.layer_b);
-    r.get("length_L", c.particles.length_L);
-    r.get("dirichlet_target", c.particles.dirichlet_target);
-    r.get("fill", c.particles.fill);
-    r.get("fill_count", c.particles.fill_count);
-    r.get("fill_mass", c.particles.fill_mass);
-    r.get("fill_center", c.particles.fill_center);
-    r.get("fill_sigma", c.particles.fill_sigma);
-    r.get("fill_arrangement", c.particles.fill_arrangement);
-    r.get("fill_amplitude", c.particles.fill_amplitude);
-    r.get("fill_mode", c.particles.fill_mode);
-  }
-  {
-    Reader r(section(root, "physics"), "physics.");
-    r.get("kappa", c.physics.kappa);
-    r.get("rho_ref", c.physics.rho_ref);
-    r.get("velocity", c.physics.velocity);
-    r.get("source_rate", c.physics.source_rate);
-  }
-  if (const toml::array* a = root["boundary"].as_array())
-    for (std::size_t i = 0; i < a->size(); ++i) {
-      Reader r(a->get(i)->as_table(), fmt::format("boundary[{}].", i));
-      BoundarySpec b;
-      r.get("patch", b.patch);
-      r.get("kind", b.kind);
-      r.get("value", b.value);
-      r.get("t_start", b.t_start);
-      r.get("t_end", b.t_end);
-      c.boundary.push_back(b);
+  if (p.fill == "file")
+    for (const Field& f : fields()) {
+      static const std::set<std::string> other_fills = {
+          "particles.fill_count", "particles.fill_mass",      "particles.fill_center", "particles.fill_sigma",
+          "particles.fill_arrangement", "particles.fill_amplitude", "particles.fill_mode"};
+      if (!other_fills.count(f.path)) continue;
+      if (const toml::node* n = given(root, f, 0))
+        throw ConfigError(f.path, shown(node_value(*n, f.kind)),
+                          "does not apply to particles.fill = \"file\" (the file gives the particles; remove it)");
     }
-  {
-    Reader r(section(root, "solver"), "solver.");
-    SolverSection& s = c.solver;
-    r.get("stepper", s.stepper);
-    r.get("backend", s.backend);
-    r.get("algorithm", s.algorithm);
-    r.get("explicit_scheme", s.explicit_scheme);
-    r.get("width_mode", s.width_mode);
-    r.get("width_metric", s.width_metric);
-    r.get("time_scheme", s.time_scheme);
-    r.get("predictor", s.predictor);
-    r.get("error_smoothing", s.error_smoothing);
-    r.get("displacement_tolerance", s.displacement_tolerance);
-    r.get("relative_tolerance", s.relative_tolerance);
-    r.get("max_iterations", s.max_iterations);
-    r.get("max_evaluations", s.max_evaluations);
-    r.get("lbfgs_memory", s.lbfgs_memory);
-    r.get("max_halvings", s.max_halvings);
-    r.get("energy_tolerance", s.energy_tolerance);
-    r.get("barrier_factor", s.barrier_factor);
-    r.get("barrier_stiffness", s.barrier_stiffness);
-    r.get("kernel_tolerance", s.kernel_tolerance);
-    r.get("skin_factor", s.skin_factor);
-  }
-  {
-    Reader r(section(root, "treatment"), "treatment.");
-    TreatmentSection& t = c.treatment;
-    r.get("preset", t.preset);
-    r.get("no_flux", t.no_flux);
-    r.get("dirichlet", t.dirichlet);
-    r.get("reservoir_width", t.reservoir_width);
-    r.get("reservoir_sublayers", t.reservoir_sublayers);
-    r.get("reservoir_profile", t.reservoir_profile);
-    r.get("neumann_outflow", t.neumann_outflow);
-    r.get("stranded", t.stranded);
-  }
-  {
-    Reader r(section(root, "diagnostics"), "diagnostics.");
-    r.get("center", c.diagnostics.center);
-    r.get("M_inf", c.diagnostics.M_inf);
-    r.get("J_inf", c.diagnostics.J_inf);
-    r.get("reference", c.diagnostics.reference);
-    r.get("reference_radius", c.diagnostics.reference_radius);
-    r.get("reference_length", c.diagnostics.reference_length);
-  }
   return c;
 }
 
 // ------------------------------------------------------------------ validation
 
-std::string shown(double v) { return format_double(v); }
-std::string shown(const Vec3& v) {
-  return "[" + format_double(v[0]) + ", " + format_double(v[1]) + ", " + format_double(v[2]) + "]";
-}
-std::string quoted(const std::string& s) { return "\"" + s + "\""; }
-
-void positive(double v, const std::string& key) {
-  if (!(v > 0.0)) throw ConfigError(key, shown(v), "must be > 0");
-}
-void non_negative(double v, const std::string& key) {
-  if (!(v >= 0.0)) throw ConfigError(key, shown(v), "must be >= 0");
-}
-template <class I>
-void at_least(I v, I lo, const std::string& key) {
-  if (v < lo) throw ConfigError(key, std::to_string(v), "must be >= " + std::to_string(lo));
+// Every key's own rule (and the required keys of the arrays of tables).
+void check_rules(const Config& c) {
+  const auto check = [&c](const Field& f, std::size_t i) {
+    const std::string name = display_name(f, i);
+    const Value v = f.get(c, i);
+    if (!f.required.empty() && is_missing(v)) throw ConfigError(name, "(missing)", f.required);
+    if (f.rule.empty() || (f.rule.when && !f.rule.when(c))) return;
+    double x = 0.0;
+    if (const auto* n = std::get_if<std::int64_t>(&v))
+      x = static_cast<double>(*n);
+    else if (const auto* d = std::get_if<double>(&v))
+      x = *d;
+    else
+      return;  // absent
+    const std::string broken = f.rule.broken_by(x);
+    if (!broken.empty()) throw ConfigError(name, shown(v), broken);
+  };
+  for (const Field& f : fields())
+    if (f.scope == Scope::Section) check(f, 0);
+  // The arrays of tables entry by entry.
+  for (const Scope scope : {Scope::SubPatch, Scope::Boundary})
+    for (std::size_t i = 0; i < entries(c, scope); ++i)
+      for (const Field& f : fields())
+        if (f.scope == scope) check(f, i);
 }
 
 bool offered(const std::string& backend, const std::string& algorithm) {
@@ -625,29 +828,19 @@ bool offered(const std::string& backend, const std::string& algorithm) {
   return algorithm == "tnewton" || algorithm == "var2" || algorithm == "mma";
 }
 
+// The rules that combine keys (each key's own rule is in the table).
 void validate(const Config& c) {
+  check_rules(c);
+
   const RunSection& r = c.run;
-  if (r.dim < 1 || r.dim > 3) throw ConfigError("run.dim", std::to_string(r.dim), "must be 1, 2 or 3");
-  positive(r.t_end, "run.t_end");
-  if (r.dt) positive(*r.dt, "run.dt");
-  positive(r.dt_factor, "run.dt_factor");
-  at_least<std::int64_t>(r.seed, 0, "run.seed");
-  at_least<std::int64_t>(r.max_steps, 0, "run.max_steps");
-  positive(r.time_tolerance, "run.time_tolerance");
-  if (r.dt_min) non_negative(*r.dt_min, "run.dt_min");
-  if (r.dt_max) positive(*r.dt_max, "run.dt_max");
   if (r.dt_min && r.dt_max && *r.dt_max < *r.dt_min)
     throw ConfigError("run.dt_max", shown(*r.dt_max), fmt::format("must be >= run.dt_min = {}", shown(*r.dt_min)));
   if (r.dt_mode == "adaptive" && c.solver.stepper != "implicit")
     throw ConfigError("run.dt_mode", quoted(r.dt_mode),
                       "needs solver.stepper = \"implicit\" (the explicit schemes have no error estimate)");
-  at_least<std::int64_t>(r.vtk_interval, 0, "run.vtk_interval");
-  if (r.threads < 0 || r.threads > 4096)
-    throw ConfigError("run.threads", std::to_string(r.threads), "must be in [0, 4096] (0: OpenMP default)");
 
   const DomainSection& d = c.domain;
   const std::string& type = d.type;
-  if (type == "ball" || type == "cylinder") positive(d.radius, "domain.radius");
   if (type == "box" || type == "periodic_box" || type == "square_pipe_obstacle" || type == "free") {
     for (int k = 0; k < r.dim; ++k)
       if (!(d.hi[k] > d.lo[k]))
@@ -662,33 +855,27 @@ void validate(const Config& c) {
   }
   if (type == "square_pipe_obstacle") {
     if (r.dim < 2) throw ConfigError("domain.type", quoted(type), "needs run.dim = 2 or 3");
-    if (d.obstacle_radius) positive(*d.obstacle_radius, "domain.obstacle_radius");
     if (r.dim == 2 && d.obstacle_axis != "z")
       throw ConfigError("domain.obstacle_axis", quoted(d.obstacle_axis), "must be \"z\" in 2D (a disc obstacle)");
   }
   std::set<std::string> sub_names;
   for (std::size_t i = 0; i < d.subpatches.size(); ++i) {
     const SubPatchSpec& s = d.subpatches[i];
-    const std::string p = fmt::format("domain.subpatch[{}].", i);
-    if (s.name.empty()) throw ConfigError(p + "name", "(missing)", "required, a non-empty patch name");
-    if (!sub_names.insert(s.name).second) throw ConfigError(p + "name", quoted(s.name), "duplicate sub-patch name");
-    if (s.on.empty()) throw ConfigError(p + "on", "(missing)", "required: the name of the patch it lies on");
-    if (std::isnan(s.radius)) throw ConfigError(p + "radius", "(missing)", "required, > 0");
-    positive(s.radius, p + "radius");
+    if (!sub_names.insert(s.name).second)
+      throw ConfigError(fmt::format("domain.subpatch[{}].name", i), quoted(s.name), "duplicate sub-patch name");
   }
 
   const ParticlesSection& pa = c.particles;
-  at_least<std::int64_t>(pa.n_inf, 1, "particles.n_inf");
-  if (pa.mass) positive(*pa.mass, "particles.mass");
   if (pa.spacing_rule == "sphere_radius" && r.dim != 3)
     throw ConfigError("particles.spacing_rule", quoted(pa.spacing_rule), "needs run.dim = 3 (use \"cube\")");
-  positive(pa.beta_factor, "particles.beta_factor");
-  if (!(pa.width_exponent > 0.0 && pa.width_exponent <= 2.0))
-    throw ConfigError("particles.width_exponent", shown(pa.width_exponent),
-                      "must be in (0, 2] (s = s_rule(dr) (dr / dr_ref)^(q - 1); 1: the papers' fixed beta dr^2)");
-  at_least<std::int64_t>(pa.width_reference_n, 1, "particles.width_reference_n");
-  non_negative(pa.layer_b, "particles.layer_b");
-  non_negative(pa.length_L, "particles.length_L");
+  if (pa.fill == "file" && !pa.fill_file)
+    throw ConfigError("particles.fill_file", "(missing)", "required with particles.fill = \"file\"");
+  if (pa.fill != "file" && pa.fill_file)
+    throw ConfigError("particles.fill_file", quoted(*pa.fill_file),
+                      "needs particles.fill = \"file\" (particles.fill = " + quoted(pa.fill) + ")");
+  if (pa.fill_file && !fs::is_regular_file(*pa.fill_file))
+    throw ConfigError("particles.fill_file", quoted(*pa.fill_file),
+                      "no such file (a relative path is taken from the configuration file's directory)");
   if (pa.fill_count && pa.fill_mass)
     throw ConfigError("particles.fill_count", std::to_string(*pa.fill_count),
                       "give either particles.fill_count or particles.fill_mass, not both");
@@ -696,12 +883,6 @@ void validate(const Config& c) {
     throw ConfigError(pa.fill_count ? "particles.fill_count" : "particles.fill_mass",
                       pa.fill_count ? std::to_string(*pa.fill_count) : shown(*pa.fill_mass),
                       "needs particles.fill = \"uniform\", \"gaussian\" or \"cosine\"");
-  if (pa.fill_count) at_least<std::int64_t>(*pa.fill_count, 0, "particles.fill_count");
-  if (pa.fill_mass) non_negative(*pa.fill_mass, "particles.fill_mass");
-  positive(pa.fill_sigma, "particles.fill_sigma");
-  if (!(pa.fill_amplitude >= 0.0 && pa.fill_amplitude < 1.0))
-    throw ConfigError("particles.fill_amplitude", shown(pa.fill_amplitude), "must be in [0, 1) (density 1 + a cos(k x) > 0)");
-  at_least<std::int64_t>(pa.fill_mode, 1, "particles.fill_mode");
   const bool box_shaped = type == "box" || type == "periodic_box" || type == "free";
   if (pa.fill == "cosine" && !box_shaped)
     throw ConfigError("particles.fill", "\"cosine\"", "needs domain.type = \"periodic_box\", \"box\" or \"free\"");
@@ -717,25 +898,19 @@ void validate(const Config& c) {
                         "not used by fill_arrangement = \"lattice\" (the lattice of spacing dr sets the count)");
   }
 
-  positive(c.physics.kappa, "physics.kappa");
-  positive(c.physics.rho_ref, "physics.rho_ref");
-
   std::set<std::string> patches;
   for (std::size_t i = 0; i < c.boundary.size(); ++i) {
     const BoundarySpec& b = c.boundary[i];
     const std::string p = fmt::format("boundary[{}].", i);
-    if (b.patch.empty()) throw ConfigError(p + "patch", "(missing)", "required: the name of a domain patch");
     if (!patches.insert(b.patch).second)
       throw ConfigError(p + "patch", quoted(b.patch), "patch already has a [[boundary]] entry");
-    if (b.kind.empty()) throw ConfigError(p + "kind", "(missing)", "required: one of dirichlet, neumann, no_flux");
     if (b.kind == "no_flux" && b.value)
       throw ConfigError(p + "value", shown(*b.value), "not used by kind \"no_flux\" (remove it)");
     if (b.kind != "no_flux" && !b.value)
       throw ConfigError(p + "value", "(missing)",
                         b.kind == "dirichlet" ? "required: the boundary density g (>= 0)"
                                               : "required: the outward mass flux f (< 0 is inflow)");
-    if (b.kind == "dirichlet") non_negative(*b.value, p + "value");
-    non_negative(b.t_start, p + "t_start");
+    if (b.kind == "dirichlet" && !(*b.value >= 0.0)) throw ConfigError(p + "value", shown(*b.value), "must be >= 0");
     if (b.t_end && !(*b.t_end > b.t_start))
       throw ConfigError(p + "t_end", shown(*b.t_end), "must be > t_start = " + shown(b.t_start));
     if (b.kind != "neumann" && (b.t_start != 0.0 || b.t_end))
@@ -753,44 +928,10 @@ void validate(const Config& c) {
   if (s.time_scheme != "euler" && s.stepper != "implicit")
     throw ConfigError("solver.time_scheme", quoted(s.time_scheme),
                       "needs solver.stepper = \"implicit\" (explicit schemes: solver.explicit_scheme)");
-  if (!(s.error_smoothing >= 0.0 && s.error_smoothing <= 3.0))
-    throw ConfigError("solver.error_smoothing", shown(s.error_smoothing),
-                      "must be in [0, 3] widths (the neighbour list reaches about 4.3 widths)");
   if (s.predictor != "none" && s.stepper != "implicit")
     throw ConfigError("solver.predictor", quoted(s.predictor), "needs solver.stepper = \"implicit\"");
-  positive(s.displacement_tolerance, "solver.displacement_tolerance");
-  if (!(s.relative_tolerance >= 0.0 && s.relative_tolerance <= 1.0))
-    throw ConfigError("solver.relative_tolerance", shown(s.relative_tolerance), "must be in [0, 1] (0: absolute rule only)");
-  at_least<std::int64_t>(s.max_iterations, 1, "solver.max_iterations");
-  at_least<std::int64_t>(s.max_evaluations, 1, "solver.max_evaluations");
-  at_least<std::int64_t>(s.lbfgs_memory, 1, "solver.lbfgs_memory");
-  if (s.max_halvings < 0 || s.max_halvings > 20)
-    throw ConfigError("solver.max_halvings", std::to_string(s.max_halvings), "must be in [0, 20]");
-  if (s.max_iterations > std::numeric_limits<int>::max())
-    throw ConfigError("solver.max_iterations", std::to_string(s.max_iterations), "out of range");
-  if (s.max_evaluations > std::numeric_limits<int>::max())
-    throw ConfigError("solver.max_evaluations", std::to_string(s.max_evaluations), "out of range");
-  if (s.lbfgs_memory > 1000) throw ConfigError("solver.lbfgs_memory", std::to_string(s.lbfgs_memory), "must be <= 1000");
-  non_negative(s.energy_tolerance, "solver.energy_tolerance");
-  positive(s.barrier_factor, "solver.barrier_factor");
-  if (s.barrier_stiffness) positive(*s.barrier_stiffness, "solver.barrier_stiffness");
-  if (!(s.kernel_tolerance > 0.0 && s.kernel_tolerance < 1.0))
-    throw ConfigError("solver.kernel_tolerance", shown(s.kernel_tolerance), "must be in (0, 1)");
-  positive(s.skin_factor, "solver.skin_factor");
 
   const DiagnosticsSection& g = c.diagnostics;
-  const TreatmentSection& t = c.treatment;
-  positive(t.reservoir_width, "treatment.reservoir_width");
-  if (t.reservoir_width > 10.0)
-    throw ConfigError("treatment.reservoir_width", fmt::format("{}", t.reservoir_width),
-                      "must be <= 10 (kernel cut-offs)");
-  if (t.reservoir_sublayers < 0 || t.reservoir_sublayers > 1000)
-    throw ConfigError("treatment.reservoir_sublayers", std::to_string(t.reservoir_sublayers),
-                      "must be in [0, 1000] (0: about one spacing per sublayer)");
-  if (g.M_inf) positive(*g.M_inf, "diagnostics.M_inf");
-  if (g.J_inf) positive(*g.J_inf, "diagnostics.J_inf");
-  if (g.reference_radius) positive(*g.reference_radius, "diagnostics.reference_radius");
-  if (g.reference_length) positive(*g.reference_length, "diagnostics.reference_length");
   // cos(k (x - lo)) with k = 2 pi m / L is a mode of the periodic box and,
   // its slope vanishing at both ends, of a closed box (no-flux walls only).
   if (g.reference == "cosine_mode" && (type != "periodic_box" && type != "box"))
@@ -808,10 +949,11 @@ void validate(const Config& c) {
                       "must be > 0 with diagnostics.reference = \"cosine_mode\" (the mode to follow)");
 }
 
-Config finish(toml::table& root, const std::vector<std::string>& overrides, const std::string& source) {
+Config finish(toml::table& root, const std::vector<std::string>& overrides, const std::string& source,
+              const fs::path& base) {
   check_structure(root);
   for (const std::string& o : overrides) apply_override(root, o);
-  Config c = to_config(root);
+  Config c = to_config(root, base);
   c.source = source;
   c.overrides = overrides;
   validate(c);
@@ -823,6 +965,46 @@ std::string parse_error_text(const toml::parse_error& e, const std::string& sour
   return fmt::format("{}:{}:{}: TOML syntax error: {}", source, b.line, b.column, e.description());
 }
 
+Config parse_text(std::string_view toml_text, const std::vector<std::string>& overrides, const std::string& source,
+                  const fs::path& base) {
+  toml::table root;
+  try {
+    root = toml::parse(toml_text, source);
+  } catch (const toml::parse_error& e) {
+    throw ConfigError("config", parse_error_text(e, source));
+  }
+  return finish(root, overrides, source, base);
+}
+
+toml::array toml_point(const Vec3& v) { return toml::array{v[0], v[1], v[2]}; }
+nlohmann::json json_point(const Vec3& v) { return nlohmann::json::array({v[0], v[1], v[2]}); }
+
+// Adds key `f` of entry i to the TOML table `t` (absent values are left out).
+void put(toml::table& t, const Field& f, const Value& v) {
+  if (const auto* n = std::get_if<std::int64_t>(&v)) t.insert_or_assign(f.key, *n);
+  if (const auto* d = std::get_if<double>(&v)) t.insert_or_assign(f.key, *d);
+  if (const auto* s = std::get_if<std::string>(&v)) t.insert_or_assign(f.key, *s);
+  if (const auto* p = std::get_if<Vec3>(&v)) t.insert_or_assign(f.key, toml_point(*p));
+}
+
+nlohmann::json json_value(const Value& v) {
+  if (const auto* n = std::get_if<std::int64_t>(&v)) return *n;
+  if (const auto* d = std::get_if<double>(&v)) return *d;
+  if (const auto* s = std::get_if<std::string>(&v)) return *s;
+  if (const auto* p = std::get_if<Vec3>(&v)) return json_point(*p);
+  return nullptr;
+}
+
+const char* type_name(Kind k) {
+  switch (k) {
+    case Kind::Int: return "integer";
+    case Kind::Float: return "number";
+    case Kind::String: return "string";
+    case Kind::Point: return "point";
+  }
+  return "";
+}
+
 }  // namespace
 
 Config parse_config_file(const std::filesystem::path& file, const std::vector<std::string>& overrides) {
@@ -830,137 +1012,79 @@ Config parse_config_file(const std::filesystem::path& file, const std::vector<st
   if (!in) throw ConfigError("config", "\"" + file.string() + "\"", "cannot open the configuration file");
   std::ostringstream text;
   text << in.rdbuf();
-  return parse_config_string(text.str(), overrides, file.string());
+  return parse_text(text.str(), overrides, file.string(), fs::absolute(file).parent_path());
 }
 
 Config parse_config_string(std::string_view toml_text, const std::vector<std::string>& overrides,
                            const std::string& source) {
-  toml::table root;
-  try {
-    root = toml::parse(toml_text, source);
-  } catch (const toml::parse_error& e) {
-    throw ConfigError("config", parse_error_text(e, source));
-  }
-  return finish(root, overrides, source);
+  return parse_text(toml_text, overrides, source, fs::current_path());
 }
 
 std::vector<std::string> schema_keys() {
   std::vector<std::string> out;
-  for (const KeySpec& k : schema()) out.push_back(k.path);
+  for (const Field& f : fields()) out.push_back(f.path);
   return out;
 }
 
+const std::vector<KeyInfo>& schema() {
+  static const std::vector<KeyInfo> keys = [] {
+    std::vector<KeyInfo> out;
+    for (const Field& f : fields()) {
+      KeyInfo k;
+      k.path = f.path;
+      k.type = type_name(f.kind);
+      k.optional = f.optional;
+      k.required = !f.required.empty();
+      k.default_value = k.required ? nlohmann::json(nullptr) : json_value(f.fallback);
+      k.choices = f.choices;
+      k.rule = f.rule.short_form();
+      out.push_back(std::move(k));
+    }
+    return out;
+  }();
+  return keys;
+}
+
 std::string to_toml(const Config& c) {
-  auto point = [](const Vec3& v) { return toml::array{v[0], v[1], v[2]}; };
   toml::table root;
-  toml::table run{{"dim", c.run.dim},
-                  {"t_end", c.run.t_end},
-                  {"dt_factor", c.run.dt_factor},
-                  {"seed", c.run.seed},
-                  {"max_steps", c.run.max_steps},
-                  {"dt_mode", c.run.dt_mode},
-                  {"time_tolerance", c.run.time_tolerance},
-                  {"vtk_interval", c.run.vtk_interval},
-                  {"threads", c.run.threads}};
-  if (c.run.dt) run.insert("dt", *c.run.dt);
-  if (c.run.dt_min) run.insert("dt_min", *c.run.dt_min);
-  if (c.run.dt_max) run.insert("dt_max", *c.run.dt_max);
-  root.insert("run", std::move(run));
-
-  const DomainSection& d = c.domain;
-  toml::table dom{{"type", d.type},       {"center", point(d.center)}, {"radius", d.radius},
-                  {"lo", point(d.lo)},     {"hi", point(d.hi)},         {"end_a", point(d.end_a)},
-                  {"end_b", point(d.end_b)}, {"obstacle_axis", d.obstacle_axis}};
-  if (d.obstacle_center) dom.insert("obstacle_center", point(*d.obstacle_center));
-  if (d.obstacle_radius) dom.insert("obstacle_radius", *d.obstacle_radius);
-  if (!d.subpatches.empty()) {
-    toml::array subs;
-    for (const SubPatchSpec& s : d.subpatches) {
-      toml::table t{{"name", s.name}, {"on", s.on}, {"radius", s.radius}};
-      if (s.center) t.insert("center", point(*s.center));
-      subs.push_back(std::move(t));
+  toml::array subpatches, boundaries;
+  for (std::size_t i = 0; i < c.domain.subpatches.size(); ++i) subpatches.push_back(toml::table{});
+  for (std::size_t i = 0; i < c.boundary.size(); ++i) boundaries.push_back(toml::table{});
+  for (const Field& f : fields())
+    for (std::size_t i = 0; i < entries(c, f.scope); ++i) {
+      if (f.in_toml && !f.in_toml(c, i)) continue;
+      switch (f.scope) {
+        case Scope::Section:
+          if (!root.contains(f.section)) root.insert(f.section, toml::table{});
+          put(*root[f.section].as_table(), f, f.get(c, i));
+          break;
+        case Scope::SubPatch: put(*subpatches.get(i)->as_table(), f, f.get(c, i)); break;
+        case Scope::Boundary: put(*boundaries.get(i)->as_table(), f, f.get(c, i)); break;
+      }
     }
-    dom.insert("subpatch", std::move(subs));
-  }
-  root.insert("domain", std::move(dom));
-
-  const ParticlesSection& p = c.particles;
-  toml::table par{{"n_inf", p.n_inf},
-                  {"spacing_rule", p.spacing_rule},
-                  {"beta_factor", p.beta_factor},
-                  {"width_exponent", p.width_exponent},
-                  {"width_reference_n", p.width_reference_n},
-                  {"layer_b", p.layer_b},
-                  {"length_L", p.length_L},
-                  {"dirichlet_target", p.dirichlet_target},
-                  {"fill", p.fill},
-                  {"fill_sigma", p.fill_sigma},
-                  {"fill_arrangement", p.fill_arrangement},
-                  {"fill_amplitude", p.fill_amplitude},
-                  {"fill_mode", p.fill_mode}};
-  if (p.mass) par.insert("mass", *p.mass);
-  if (p.fill_count) par.insert("fill_count", *p.fill_count);
-  if (p.fill_mass) par.insert("fill_mass", *p.fill_mass);
-  if (p.fill_center) par.insert("fill_center", point(*p.fill_center));
-  root.insert("particles", std::move(par));
-
-  root.insert("physics", toml::table{{"kappa", c.physics.kappa},
-                                     {"rho_ref", c.physics.rho_ref},
-                                     {"velocity", point(c.physics.velocity)},
-                                     {"source_rate", c.physics.source_rate}});
-  if (!c.boundary.empty()) {
-    toml::array bs;
-    for (const BoundarySpec& b : c.boundary) {
-      toml::table t{{"patch", b.patch}, {"kind", b.kind}};
-      if (b.value) t.insert("value", *b.value);
-      if (b.kind == "neumann") t.insert("t_start", b.t_start);
-      if (b.t_end) t.insert("t_end", *b.t_end);
-      bs.push_back(std::move(t));
-    }
-    root.insert("boundary", std::move(bs));
-  }
-  const SolverSection& s = c.solver;
-  toml::table sol{{"stepper", s.stepper},
-                  {"backend", s.backend},
-                  {"algorithm", s.algorithm},
-                  {"explicit_scheme", s.explicit_scheme},
-                  {"width_mode", s.width_mode},
-                  {"width_metric", s.width_metric},
-                  {"time_scheme", s.time_scheme},
-                  {"predictor", s.predictor},
-                  {"error_smoothing", s.error_smoothing},
-                  {"displacement_tolerance", s.displacement_tolerance},
-                  {"relative_tolerance", s.relative_tolerance},
-                  {"max_iterations", s.max_iterations},
-                  {"max_evaluations", s.max_evaluations},
-                  {"lbfgs_memory", s.lbfgs_memory},
-                  {"max_halvings", s.max_halvings},
-                  {"energy_tolerance", s.energy_tolerance},
-                  {"barrier_factor", s.barrier_factor},
-                  {"kernel_tolerance", s.kernel_tolerance},
-                  {"skin_factor", s.skin_factor}};
-  if (s.barrier_stiffness) sol.insert("barrier_stiffness", *s.barrier_stiffness);
-  root.insert("solver", std::move(sol));
-  const TreatmentSection& tr = c.treatment;
-  root.insert("treatment", toml::table{{"preset", tr.preset},
-                                       {"no_flux", tr.no_flux},
-                                       {"dirichlet", tr.dirichlet},
-                                       {"reservoir_width", tr.reservoir_width},
-                                       {"reservoir_sublayers", tr.reservoir_sublayers},
-                                       {"reservoir_profile", tr.reservoir_profile},
-                                       {"neumann_outflow", tr.neumann_outflow},
-                                       {"stranded", tr.stranded}});
-  const DiagnosticsSection& g = c.diagnostics;
-  toml::table dia{{"reference", g.reference}};
-  if (g.center) dia.insert("center", point(*g.center));
-  if (g.M_inf) dia.insert("M_inf", *g.M_inf);
-  if (g.J_inf) dia.insert("J_inf", *g.J_inf);
-  if (g.reference_radius) dia.insert("reference_radius", *g.reference_radius);
-  if (g.reference_length) dia.insert("reference_length", *g.reference_length);
-  root.insert("diagnostics", std::move(dia));
+  if (!subpatches.empty()) root["domain"].as_table()->insert("subpatch", std::move(subpatches));
+  if (!boundaries.empty()) root.insert("boundary", std::move(boundaries));
   std::ostringstream os;
   os << root;
   return os.str();
+}
+
+nlohmann::json config_to_json(const Config& c) {
+  nlohmann::json j = nlohmann::json::object();
+  j["boundary"] = nlohmann::json::array();
+  j["domain"]["subpatch"] = nlohmann::json::array();
+  for (std::size_t i = 0; i < c.domain.subpatches.size(); ++i) j["domain"]["subpatch"].push_back(nlohmann::json::object());
+  for (std::size_t i = 0; i < c.boundary.size(); ++i) j["boundary"].push_back(nlohmann::json::object());
+  for (const Field& f : fields())
+    for (std::size_t i = 0; i < entries(c, f.scope); ++i) {
+      const nlohmann::json v = json_value(f.get(c, i));
+      switch (f.scope) {
+        case Scope::Section: j[f.section][f.key] = v; break;
+        case Scope::SubPatch: j["domain"]["subpatch"][i][f.key] = v; break;
+        case Scope::Boundary: j["boundary"][i][f.key] = v; break;
+      }
+    }
+  return j;
 }
 
 }  // namespace otfp::app

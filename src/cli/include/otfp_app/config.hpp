@@ -2,14 +2,23 @@
 // Configuration of one otfp run: the TOML schema (docs/configuration.md), its
 // typed form, and parsing with --set overrides. Every rejected value raises
 // ConfigError with the message "<key> = <value>: <rule>" (exit code 2).
+//
+// One table in config.cpp lists every key (path, type, member, choices, range
+// rule); parsing, validation, to_toml, config_to_json and schema() iterate
+// it. A key's default is the in-class default of its member below, and where
+// the key sets a library option, that default is the library's own
+// (ImplicitOptions{}, ExplicitOptions{}, MinimizerOptions{}).
 #include <cstdint>
 #include <filesystem>
+#include <limits>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <stdexcept>
 #include <string>
 #include <string_view>
 #include <vector>
 
+#include "otfp/stepper.hpp"
 #include "otfp/types.hpp"
 
 namespace otfp::app {
@@ -37,6 +46,7 @@ struct RunSection {
   std::optional<double> dt_min;   // adaptive: absent = 1e-3 x the initial dt
   std::optional<double> dt_max;   // adaptive: absent = t_end
   std::int64_t vtk_interval = 50;  // 0: initial and final snapshot only
+  std::int64_t checkpoint_interval = 100;  // a checkpoint every this many steps and at the end; 0: at the end only
   int threads = 1;  // 0: OpenMP default
 };
 
@@ -44,7 +54,7 @@ struct SubPatchSpec {
   std::string name;
   std::string on;               // base patch name
   std::optional<Vec3> center;   // absent: centre of the base patch
-  double radius = 0.0;
+  double radius = std::numeric_limits<double>::quiet_NaN();  // required: NaN until given
 };
 
 struct DomainSection {
@@ -71,7 +81,10 @@ struct ParticlesSection {
   double layer_b = 0.0;   // 0: sqrt(length_L dr)
   double length_L = 0.0;  // 0: from the domain
   std::string dirichlet_target = "cell_integral";  // cell_integral | paper_eq34
-  std::string fill = "empty";  // empty | uniform | gaussian | cosine
+  std::string fill = "empty";  // empty | uniform | gaussian | cosine | file
+  // fill = "file": the particle file, resolved against the directory of the
+  // configuration file (parse_config_string: the current directory).
+  std::optional<std::string> fill_file;
   std::optional<std::int64_t> fill_count;
   std::optional<double> fill_mass;
   std::optional<Vec3> fill_center;
@@ -96,27 +109,29 @@ struct BoundarySpec {
   std::optional<double> t_end;
 };
 
+// The keys that set a library option take their default from the library's
+// option struct (one default per option; tests/test_config.cpp pins the values).
 struct SolverSection {
   std::string stepper = "implicit";  // implicit | explicit
-  std::string backend = "ceres";     // ceres | nlopt
-  std::string algorithm = "lbfgs";
-  std::string explicit_scheme = "euler27";
-  std::string width_mode = "fixed";
-  std::string width_metric = "as_printed";  // as_printed | exact
-  std::string time_scheme = "euler";        // euler | bdf2
-  std::string predictor = "none";           // none | extrapolate | damped
-  double error_smoothing = 2.0;             // error estimate: smoothing length in widths (0: per particle)
-  double displacement_tolerance = 1e-3;
-  double relative_tolerance = 1e-2;
-  std::int64_t max_iterations = 1000;
-  std::int64_t max_evaluations = 5000;
-  std::int64_t lbfgs_memory = 10;
-  std::int64_t max_halvings = 4;
-  double energy_tolerance = 1e-9;
+  std::string backend = to_string(ImplicitOptions{}.minimizer.backend);      // ceres | nlopt
+  std::string algorithm = to_string(ImplicitOptions{}.minimizer.algorithm);  // lbfgs | ... (by backend)
+  std::string explicit_scheme = to_string(ExplicitOptions{}.scheme);         // euler27 | rk4 | euler_exact
+  std::string width_mode = to_string(ImplicitOptions{}.width_mode);          // fixed | per_particle
+  std::string width_metric = "as_printed";  // as_printed | exact (WidthMetric has no names in the library)
+  std::string time_scheme = to_string(ImplicitOptions{}.time_scheme);        // euler | bdf2
+  std::string predictor = to_string(ImplicitOptions{}.predictor);            // none | extrapolate | damped
+  double error_smoothing = ImplicitOptions{}.error_smoothing;  // error estimate: smoothing length in widths
+  double displacement_tolerance = ImplicitOptions{}.displacement_tolerance;
+  double relative_tolerance = ImplicitOptions{}.relative_tolerance;
+  std::int64_t max_iterations = ImplicitOptions{}.minimizer.max_iterations;
+  std::int64_t max_evaluations = ImplicitOptions{}.minimizer.max_evaluations;
+  std::int64_t lbfgs_memory = ImplicitOptions{}.minimizer.lbfgs_memory;
+  std::int64_t max_halvings = ImplicitOptions{}.max_halvings;
+  double energy_tolerance = ImplicitOptions{}.energy_tolerance;
   double barrier_factor = 1.0;
   std::optional<double> barrier_stiffness;
-  double kernel_tolerance = 1e-8;
-  double skin_factor = 1.0;
+  double kernel_tolerance = ImplicitOptions{}.neighbor.kernel_tolerance;
+  double skin_factor = ImplicitOptions{}.neighbor.skin_factor;
 };
 
 // How the boundaries are treated (docs/boundaries.md): the papers' way or the
@@ -166,8 +181,26 @@ Config parse_config_string(std::string_view toml_text, const std::vector<std::st
 // "boundary[].patch" and "domain.subpatch[].name" (for docs and tests).
 std::vector<std::string> schema_keys();
 
+// One key of the table, as docs and tests see it.
+struct KeyInfo {
+  std::string path;                  // "run.dim", "boundary[].kind"
+  std::string type;                  // "integer", "number", "string" or "point"
+  nlohmann::json default_value;      // the member's in-class default; null: none (optional or required key)
+  bool optional = false;             // absent unless given (a std::optional member)
+  bool required = false;             // a key of an array of tables that every entry must give
+  std::vector<std::string> choices;  // allowed strings (empty: any)
+  std::string rule;                  // the key's own range rule, e.g. "> 0", "in (0, 2]" (empty: none)
+};
+const std::vector<KeyInfo>& schema();
+
 // The typed configuration as a TOML document (all keys, defaults filled in;
-// absent optional keys are omitted). Parsing it again gives the same Config.
+// absent optional keys and keys that do not apply are omitted). Parsing it
+// again gives the same Config.
 std::string to_toml(const Config& config);
+
+// The resolved configuration as JSON (what `otfp check` and summary.json
+// show): every key with defaults filled in, absent optional keys as null,
+// "boundary" and "domain.subpatch" as arrays of objects.
+nlohmann::json config_to_json(const Config& config);
 
 }  // namespace otfp::app
