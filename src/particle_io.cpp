@@ -313,7 +313,6 @@ ParticleSet read_vtp(const std::string& bytes, const std::string& file, int dim)
     c.birth = doubles(*age);
     for (double& b : c.birth) b = *time - b;
   }
-  c.mass.resize(n);  // n == 0: the ascii arrays are empty
   return build(c, dim, Locator{file, nullptr});
 }
 

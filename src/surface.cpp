@@ -223,7 +223,7 @@ std::string surface_vtp(const SurfaceMesh& mesh) {
   std::vector<std::int32_t> patch(mesh.patch.begin(), mesh.patch.end());
 
   const char* section = mesh.dim == 3 ? "Polys" : mesh.dim == 2 ? "Lines" : "Verts";
-  detail::VtkArrays arrays(np == 0);
+  detail::VtkArrays arrays;
   std::string xml;
   xml += "<?xml version=\"1.0\"?>\n";
   xml += "<VTKFile type=\"PolyData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";

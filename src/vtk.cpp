@@ -8,16 +8,14 @@ namespace otfp {
 
 namespace detail {
 
-std::string vtk_array_tag(const char* type, const std::string& name, int components, bool ascii,
-                          std::uint64_t offset, int indent) {
+std::string vtk_array_tag(const char* type, const std::string& name, int components, std::uint64_t offset,
+                          int indent) {
   std::string tag = fmt::format("{:{}}<DataArray type=\"{}\" Name=\"{}\"", "", indent, type, name);
   if (components != 1) tag += fmt::format(" NumberOfComponents=\"{}\"", components);
-  if (ascii) return tag + " format=\"ascii\"></DataArray>\n";
   return tag + fmt::format(" format=\"appended\" offset=\"{}\"/>\n", offset);
 }
 
 std::string VtkArrays::appended_section() const {
-  if (ascii_) return {};
   return "  <AppendedData encoding=\"raw\">\n   _" + data_ + "\n  </AppendedData>\n";
 }
 
@@ -45,7 +43,7 @@ std::string vtp_document(const ParticleSet& ps, double t, const std::vector<std:
     offsets[p] = static_cast<std::int64_t>(p + 1);
   }
 
-  detail::VtkArrays arrays(n == 0);
+  detail::VtkArrays arrays;
   std::string xml;
   xml += "<?xml version=\"1.0\"?>\n";
   xml += "<VTKFile type=\"PolyData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";

@@ -120,7 +120,7 @@ TEST(Surface, DomainsWithoutWallsGiveAnEmptyMesh) {
   EXPECT_TRUE(m.points.empty());
   const std::string doc = surface_vtp(m);
   EXPECT_NE(doc.find("NumberOfPoints=\"0\""), std::string::npos);
-  EXPECT_NE(doc.find("Name=\"patch\" format=\"ascii\"></DataArray>"), std::string::npos);
+  EXPECT_NE(doc.find("Name=\"patch\" format=\"appended\" offset=\"0\""), std::string::npos);
 }
 
 TEST(Surface, RejectsBadArguments) {

@@ -16,8 +16,9 @@ namespace otfp {
 // `region` (Int32, e.g. inside/buffer/elsewhere) and `density` (the blob
 // density at each particle, computed by the caller) are optional: empty
 // omits the array, otherwise it needs one value per particle
-// (InvalidArgument). With zero particles every array is still declared (as
-// an empty ascii array), so that a series that starts empty lists its arrays.
+// (InvalidArgument). With zero particles every array, region and density
+// included, is still declared (a zero-byte block), so that a series that
+// starts empty lists its arrays from the first snapshot on.
 std::string vtp_document(const ParticleSet& particles, double t, const std::vector<std::int32_t>& region = {},
                          const std::vector<double>& density = {});
 
