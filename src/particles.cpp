@@ -12,12 +12,18 @@ ParticleSet::ParticleSet(int dim) : dim_(dim) {
 }
 
 ParticleId ParticleSet::add(const Vec3& x, double width_s, double mass, double birth_time) {
+  return add_with_id(next_id_, x, width_s, mass, birth_time);
+}
+
+ParticleId ParticleSet::add_with_id(ParticleId id, const Vec3& x, double width_s, double mass, double birth_time) {
   require(std::isfinite(width_s) && width_s > 0.0, "particle width s", width_s, "must be finite and > 0");
   require(std::isfinite(mass) && mass > 0.0, "particle mass", mass, "must be finite and > 0");
   require(x.allFinite(), "particle position", x.norm(), "must be finite");
+  require(id >= 0, "particle id", std::to_string(id), "must be >= 0");
+  require(index_.find(id) == index_.end(), "particle id", std::to_string(id), "is already present");
   Vec3 y = x;
   for (int k = dim_; k < 3; ++k) y[k] = 0.0;
-  const ParticleId id = next_id_++;
+  next_id_ = std::max(next_id_, id + 1);
   index_.emplace(id, x_.size());
   x_.push_back(y);
   s_.push_back(width_s);
@@ -25,29 +31,6 @@ ParticleId ParticleSet::add(const Vec3& x, double width_s, double mass, double b
   birth_.push_back(birth_time);
   id_.push_back(id);
   return id;
-}
-
-ParticleId ParticleSet::add_with_id(ParticleId id, const Vec3& x, double width_s, double mass, double birth_time) {
-  require(id >= 0, "particle id", static_cast<double>(id), "must be >= 0");
-  require(index_.find(id) == index_.end(), "particle id", static_cast<double>(id), "is already present");
-  const ParticleId saved = next_id_;
-  next_id_ = id;
-  try {
-    add(x, width_s, mass, birth_time);  // validates; on a throw nothing was added
-  } catch (...) {
-    next_id_ = saved;
-    throw;
-  }
-  next_id_ = std::max(saved, id + 1);
-  return id;
-}
-
-void ParticleSet::set_next_id(ParticleId next) {
-  ParticleId least = 0;
-  for (ParticleId id : id_) least = std::max(least, id + 1);
-  require(next >= least, "next particle id", static_cast<double>(next),
-          "must be >= every present id + 1 (" + std::to_string(least) + ")");
-  next_id_ = next;
 }
 
 void ParticleSet::remove(std::size_t index) {
@@ -94,6 +77,14 @@ void ParticleSet::reserve(std::size_t n) {
   birth_.reserve(n);
   id_.reserve(n);
   index_.reserve(n);
+}
+
+void ParticleSet::set_next_id(ParticleId next) {
+  require(next >= 0, "next particle id", std::to_string(next), "must be >= 0");
+  for (ParticleId id : id_)
+    require(next > id, "next particle id", std::to_string(next),
+            "must be > every id present (id " + std::to_string(id) + " is)");
+  next_id_ = next;
 }
 
 std::ptrdiff_t ParticleSet::index_of(ParticleId id) const {

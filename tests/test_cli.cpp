@@ -588,7 +588,9 @@ TEST(Cli, OutputFilesAreCompleteAndVtkParses) {
       EXPECT_EQ(bytes, static_cast<std::uint64_t>(n) * comps * size) << a.at("Name");
       expected_total += 8 + bytes;
     }
-    EXPECT_EQ(arrays, 8);  // mass, beta, age, id, region, position, connectivity, offsets
+    // mass, beta, width_s, age, id, region, position, connectivity, offsets;
+    // with zero particles also density (declared so that ParaView lists it).
+    EXPECT_EQ(arrays, n == 0 ? 10 : 9);
     EXPECT_EQ(data.size(), expected_total);
   }
   fs::remove_all(dir);

@@ -43,6 +43,66 @@ TEST(ParticleSet, RejectsBadInput) {
   EXPECT_THROW(ps.remove_indices({0, 0}), InvalidArgument);
 }
 
+TEST(ParticleSet, AddWithIdKeepsTheIdAndAdvancesTheCounter) {
+  ParticleSet ps(2);
+  EXPECT_EQ(ps.add_with_id(7, Vec3(1.0, 2.0, 3.0), 0.25, 2.0, 0.5), 7);
+  EXPECT_EQ(ps.next_id(), 8) << "next_id = max(next_id, id + 1)";
+  EXPECT_EQ(ps.add_with_id(3, Vec3::Zero(), 1.0, 1.0), 3);
+  EXPECT_EQ(ps.next_id(), 8) << "a smaller id leaves the counter";
+  EXPECT_EQ(ps.add(Vec3::Zero(), 1.0, 1.0), 8) << "add() continues after the largest id";
+  const auto k = ps.index_of(7);
+  ASSERT_EQ(k, 0);
+  EXPECT_EQ(ps.positions()[0], Vec3(1.0, 2.0, 0.0)) << "coordinates beyond dim are zeroed";
+  EXPECT_EQ(ps.widths()[0], 0.25);
+  EXPECT_EQ(ps.masses()[0], 2.0);
+  EXPECT_EQ(ps.birth_times()[0], 0.5);
+  EXPECT_EQ(ps.index_of(3), 1);
+  EXPECT_EQ(ps.index_of(8), 2);
+}
+
+TEST(ParticleSet, AddWithIdRejectsNegativeAndDuplicateIds) {
+  ParticleSet ps(3);
+  ps.add_with_id(4, Vec3::Zero(), 1.0, 1.0);
+  try {
+    ps.add_with_id(4, Vec3::Zero(), 1.0, 1.0);
+    ADD_FAILURE() << "duplicate id accepted";
+  } catch (const InvalidArgument& e) {
+    EXPECT_STREQ(e.what(), "particle id = '4': is already present");
+  }
+  try {
+    ps.add_with_id(-1, Vec3::Zero(), 1.0, 1.0);
+    ADD_FAILURE() << "negative id accepted";
+  } catch (const InvalidArgument& e) {
+    EXPECT_STREQ(e.what(), "particle id = '-1': must be >= 0");
+  }
+  EXPECT_THROW(ps.add_with_id(5, Vec3::Zero(), 0.0, 1.0), InvalidArgument);
+  EXPECT_EQ(ps.size(), 1u) << "a rejected particle is not added";
+  EXPECT_EQ(ps.next_id(), 5) << "a rejected particle leaves the counter";
+  ps.remove(0);
+  EXPECT_EQ(ps.add_with_id(4, Vec3::Zero(), 1.0, 1.0), 4) << "a removed id may be restored";
+}
+
+TEST(ParticleSet, SetNextIdMustExceedEveryPresentId) {
+  ParticleSet ps(1);
+  ps.add_with_id(2, Vec3::Zero(), 1.0, 1.0);
+  ps.add_with_id(9, Vec3::Zero(), 1.0, 1.0);
+  ps.set_next_id(20);
+  EXPECT_EQ(ps.add(Vec3::Zero(), 1.0, 1.0), 20);
+  ps.set_next_id(21);
+  EXPECT_EQ(ps.next_id(), 21);
+  try {
+    ps.set_next_id(20);
+    ADD_FAILURE() << "next id equal to a present id accepted";
+  } catch (const InvalidArgument& e) {
+    EXPECT_STREQ(e.what(), "next particle id = '20': must be > every id present (id 20 is)");
+  }
+  EXPECT_THROW(ps.set_next_id(-1), InvalidArgument);
+  EXPECT_EQ(ps.next_id(), 21) << "a rejected value leaves the counter";
+  ParticleSet empty(3);
+  empty.set_next_id(0);
+  EXPECT_EQ(empty.add(Vec3::Zero(), 1.0, 1.0), 0);
+}
+
 TEST(Rng, IsReproducibleAndUniform) {
   Rng a(123), b(123), c(124);
   for (int i = 0; i < 100; ++i) EXPECT_EQ(a.next_u64(), b.next_u64());

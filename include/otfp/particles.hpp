@@ -32,11 +32,10 @@ class ParticleSet {
 
   // Appends a particle and returns its new id.
   ParticleId add(const Vec3& x, double width_s, double mass, double birth_time = 0.0);
-  // Appends a particle with a given id (restoring a saved set): throws
-  // InvalidArgument if id < 0 or present; next_id() becomes at least id + 1.
+  // Appends a particle with a given id (restoring a checkpoint); returns it.
+  // Throws InvalidArgument if id < 0 or already present; next_id() becomes
+  // max(next_id(), id + 1), so later add() calls never reuse it.
   ParticleId add_with_id(ParticleId id, const Vec3& x, double width_s, double mass, double birth_time = 0.0);
-  // Sets the id the next add() gives: >= every present id + 1.
-  void set_next_id(ParticleId next);
   // Removes the particle at `index`; the last particle takes its index.
   void remove(std::size_t index);
   // Removes several particles given by index (any order, no duplicates).
@@ -61,6 +60,10 @@ class ParticleSet {
   void set_beta(std::size_t p, double beta);
   double total_mass() const;
   ParticleId next_id() const { return next_id_; }
+  // Sets the id the next add() gives (a checkpoint's counter, which may be
+  // past the largest id present). Throws InvalidArgument unless next >= 0 and
+  // next > every id present.
+  void set_next_id(ParticleId next);
 
   // Reorders the particles: new index i holds the particle that had index order[i].
   // Ids move with their particles.

@@ -1,6 +1,7 @@
 #pragma once
-// Output files: atomic whole-file writes, append-only CSV rows, and VTK XML
-// PolyData (.vtp, raw appended binary) with its ParaView collection (.pvd).
+// Output files: atomic whole-file writes and append-only CSV rows. The VTK
+// documents (vtp_document, pvd_document) are the library's otfp/vtk.hpp,
+// included here so that otfp::app code keeps calling them unqualified.
 #include <cstdint>
 #include <filesystem>
 #include <string>
@@ -9,6 +10,7 @@
 #include <vector>
 
 #include "otfp/particles.hpp"
+#include "otfp/vtk.hpp"
 
 namespace otfp::app {
 
@@ -38,12 +40,5 @@ class AppendFile {
 
 // Region flag of a particle in the VTK output and the counts.
 enum Region : std::int32_t { kInside = 0, kBuffer = 1, kElsewhere = 2 };
-
-// VTK XML PolyData of the particles at time t: points, one vertex cell per
-// particle, point data mass, beta, age = t - birth, id, region.
-std::string vtp_document(const ParticleSet& particles, double t, const std::vector<std::int32_t>& region);
-
-// ParaView collection of (time, file name) entries.
-std::string pvd_document(const std::vector<std::pair<double, std::string>>& entries);
 
 }  // namespace otfp::app

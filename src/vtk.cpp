@@ -1,0 +1,112 @@
+#include "otfp/vtk.hpp"
+
+#include <fmt/format.h>
+
+#include "vtk_xml.hpp"
+
+namespace otfp {
+
+namespace detail {
+
+std::string vtk_array_tag(const char* type, const std::string& name, int components, std::uint64_t offset,
+                          int indent) {
+  std::string tag = fmt::format("{:{}}<DataArray type=\"{}\" Name=\"{}\"", "", indent, type, name);
+  if (components != 1) tag += fmt::format(" NumberOfComponents=\"{}\"", components);
+  return tag + fmt::format(" format=\"appended\" offset=\"{}\"/>\n", offset);
+}
+
+std::string VtkArrays::appended_section() const {
+  return "  <AppendedData encoding=\"raw\">\n   _" + data_ + "\n  </AppendedData>\n";
+}
+
+}  // namespace detail
+
+std::string vtp_document(const ParticleSet& ps, double t, const std::vector<std::int32_t>& region,
+                         const std::vector<double>& density) {
+  const std::size_t n = ps.size();
+  // With zero particles an empty vector is one value per particle: the
+  // optional arrays are then declared too.
+  const bool with_region = n == 0 || !region.empty();
+  const bool with_density = n == 0 || !density.empty();
+  require(!with_region || region.size() == n, "vtp_document: region size", static_cast<double>(region.size()),
+          fmt::format("must be 0 or the number of particles ({})", n));
+  require(!with_density || density.size() == n, "vtp_document: density size", static_cast<double>(density.size()),
+          fmt::format("must be 0 or the number of particles ({})", n));
+
+  std::vector<double> pos(3 * n), beta(n), age(n);
+  std::vector<std::int64_t> id(ps.ids().begin(), ps.ids().end()), conn(n), offsets(n);
+  for (std::size_t p = 0; p < n; ++p) {
+    for (int k = 0; k < 3; ++k) pos[3 * p + k] = ps.positions()[p][k];
+    beta[p] = ps.beta(p);
+    age[p] = t - ps.birth_times()[p];
+    conn[p] = static_cast<std::int64_t>(p);
+    offsets[p] = static_cast<std::int64_t>(p + 1);
+  }
+
+  detail::VtkArrays arrays;
+  std::string xml;
+  xml += "<?xml version=\"1.0\"?>\n";
+  xml += "<VTKFile type=\"PolyData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";
+  xml += "  <PolyData>\n";
+  xml += "    <FieldData>\n";
+  xml += fmt::format(
+      "      <DataArray type=\"Float64\" Name=\"TimeValue\" NumberOfTuples=\"1\" format=\"ascii\">{}</DataArray>\n", t);
+  xml += "    </FieldData>\n";
+  xml += fmt::format(
+      "    <Piece NumberOfPoints=\"{0}\" NumberOfVerts=\"{0}\" NumberOfLines=\"0\" NumberOfStrips=\"0\" "
+      "NumberOfPolys=\"0\">\n",
+      n);
+  xml += "      <PointData Scalars=\"age\">\n";
+  xml += arrays.array("mass", ps.masses(), 1, 8);
+  xml += arrays.array("beta", beta, 1, 8);
+  xml += arrays.array("width_s", ps.widths(), 1, 8);
+  xml += arrays.array("age", age, 1, 8);
+  xml += arrays.array("id", id, 1, 8);
+  if (with_region) xml += arrays.array("region", region, 1, 8);
+  if (with_density) xml += arrays.array("density", density, 1, 8);
+  xml += "      </PointData>\n";
+  xml += "      <Points>\n";
+  xml += arrays.array("position", pos, 3, 8);
+  xml += "      </Points>\n";
+  xml += "      <Verts>\n";
+  xml += arrays.array("connectivity", conn, 1, 8);
+  xml += arrays.array("offsets", offsets, 1, 8);
+  xml += "      </Verts>\n";
+  xml += "    </Piece>\n";
+  xml += "  </PolyData>\n";
+  xml += arrays.appended_section();
+  xml += "</VTKFile>\n";
+  return xml;
+}
+
+namespace {
+// A file name as an XML attribute value.
+std::string xml_escaped(const std::string& s) {
+  std::string out;
+  for (char c : s) {
+    switch (c) {
+      case '&': out += "&amp;"; break;
+      case '<': out += "&lt;"; break;
+      case '>': out += "&gt;"; break;
+      case '"': out += "&quot;"; break;
+      default: out += c;
+    }
+  }
+  return out;
+}
+}  // namespace
+
+std::string pvd_document(const std::vector<std::pair<double, std::string>>& entries, const std::string& static_file) {
+  std::string xml = "<?xml version=\"1.0\"?>\n";
+  xml += "<VTKFile type=\"Collection\" version=\"0.1\" byte_order=\"LittleEndian\">\n  <Collection>\n";
+  const std::string fixed = xml_escaped(static_file);
+  for (const auto& [t, file] : entries) {
+    xml += fmt::format("    <DataSet timestep=\"{}\" group=\"\" part=\"0\" file=\"{}\"/>\n", t, xml_escaped(file));
+    if (!fixed.empty())
+      xml += fmt::format("    <DataSet timestep=\"{}\" group=\"\" part=\"1\" file=\"{}\"/>\n", t, fixed);
+  }
+  xml += "  </Collection>\n</VTKFile>\n";
+  return xml;
+}
+
+}  // namespace otfp
