@@ -376,7 +376,7 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   summary.iterations += ms.iterations;
   summary.evaluations += ms.evaluations;
   summary.solver_seconds += ms.solver_seconds;
-  summary.gradient_norm = ms.final_stopping_measure;
+  summary.residual_displacement = ms.final_stopping_measure;
   summary.gradient_tolerance = ms.gradient_tolerance;
   summary.parts_before = before;
   summary.f_before = f0;

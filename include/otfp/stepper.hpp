@@ -54,7 +54,7 @@ struct StepSummary {
   FunctionalParts parts_before, parts_after;
   int iterations = 0;                       // summed over substeps
   int evaluations = 0;                      // value+gradient evaluations, summed
-  double gradient_norm = 0.0;               // final scaled stopping measure (a displacement)
+  double residual_displacement = 0.0;       // final stopping measure: largest dt/m |dF/dx| left (a length)
   int list_builds = 0;                      // neighbour-list builds during the step
   double wall_seconds = 0.0;
   double solver_seconds = 0.0;              // time inside the optimiser itself

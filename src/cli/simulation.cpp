@@ -555,7 +555,7 @@ RunResult Simulation::run(const RunOptions& options) {
   std::string header =
       "step,t,dt,n_particles,mass_total,mass_inside,polar_inertia,inserted,removed,energy,iterations,evaluations,"
       "mass_with_layer,polar_inertia_with_layer,polar_inertia_total,n_inside,n_buffer,n_outside,inserted_total,"
-      "removed_total,transport,entropy,barrier,gradient_norm,list_builds,halvings,error_estimate,rejected_steps,"
+      "removed_total,transport,entropy,barrier,residual_displacement,list_builds,halvings,error_estimate,rejected_steps,"
       "mean_age,max_age,l1_mass,"
       "l1_polar_inertia,mass_ratio";
   if (has_j_ratio) header += ",polar_inertia_ratio";
@@ -618,7 +618,7 @@ RunResult Simulation::run(const RunOptions& options) {
       r.transport = sum->parts_after.transport;
       r.entropy = sum->parts_after.entropy;
       r.barrier = sum->parts_after.barrier;
-      r.gradient_norm = sum->gradient_norm;
+      r.residual_displacement = sum->residual_displacement;
       r.iterations = sum->iterations;
       r.evaluations = sum->evaluations;
       r.list_builds = sum->list_builds;
@@ -754,7 +754,7 @@ RunResult Simulation::run(const RunOptions& options) {
     num(r.transport, "transport");
     num(r.entropy, "entropy");
     num(r.barrier, "barrier");
-    num(r.gradient_norm, "gradient_norm");
+    num(r.residual_displacement, "residual_displacement");
     integer(r.list_builds);
     integer(r.halvings);
     if (r.error_estimate)

@@ -81,7 +81,7 @@ struct StepRecord {
   double mass_total = 0.0, mass_inside = 0.0, mass_with_layer = 0.0;
   double polar_inertia = 0.0, polar_inertia_with_layer = 0.0, polar_inertia_total = 0.0;
   std::int64_t inserted = 0, removed = 0, inserted_total = 0, removed_total = 0;
-  double energy = 0.0, transport = 0.0, entropy = 0.0, barrier = 0.0, gradient_norm = 0.0;
+  double energy = 0.0, transport = 0.0, entropy = 0.0, barrier = 0.0, residual_displacement = 0.0;
   std::int64_t iterations = 0, evaluations = 0, list_builds = 0, halvings = 0;
   std::optional<double> error_estimate;           // local time-error estimate of the accepted step (in widths)
   std::int64_t rejected_steps = 0;                // adaptive dt: tries rejected by the error test before this step
