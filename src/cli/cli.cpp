@@ -2,6 +2,8 @@
 
 #include <unistd.h>
 
+#include <csignal>
+
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
@@ -21,6 +23,35 @@ namespace {
 
 constexpr int kRunFailed = 1;
 constexpr int kUsage = 2;
+
+// SIGINT/SIGTERM during `otfp run`: finish the current step, write the
+// checkpoint and complete files, exit with kExitInterrupted. A second signal
+// kills at once (the handler resets itself).
+volatile std::sig_atomic_t g_stop = 0;
+extern "C" void on_stop_signal(int) { g_stop = 1; }
+
+struct StopSignals {
+  struct sigaction old_int {}, old_term {};
+  StopSignals() {
+    g_stop = 0;
+    struct sigaction sa {};
+    sa.sa_handler = on_stop_signal;
+    sigemptyset(&sa.sa_mask);
+    sa.sa_flags = SA_RESETHAND;
+    sigaction(SIGINT, &sa, &old_int);
+    sigaction(SIGTERM, &sa, &old_term);
+  }
+  ~StopSignals() {
+    sigaction(SIGINT, &old_int, nullptr);
+    sigaction(SIGTERM, &old_term, nullptr);
+  }
+  StopSignals(const StopSignals&) = delete;
+  StopSignals& operator=(const StopSignals&) = delete;
+};
+
+// The keys a resumed run may change: where it ends and how it writes.
+const char* const kResumeKeys[] = {"run.t_end", "run.max_steps", "run.vtk_interval", "run.checkpoint_interval",
+                                   "run.threads"};
 
 int error(std::ostream& err, const std::string& message, int code) {
   err << "otfp: error: " << message << "\n";
@@ -47,13 +78,15 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   app.set_version_flag("--version", "otfp " + version());
   app.require_subcommand(1);
 
-  std::string config, out_dir;
+  std::string config, out_dir, resume_dir;
   std::vector<std::string> sets;
   bool quiet = false;
 
   CLI::App* run = app.add_subcommand("run", "run a simulation and write its outputs");
-  run->add_option("config", config, "configuration file (TOML)")->required();
-  run->add_option("--out,-o", out_dir, "output directory (created if missing)")->required();
+  run->add_option("config", config, "configuration file (TOML)");
+  run->add_option("--out,-o", out_dir, "output directory (created if missing)");
+  run->add_option("--resume", resume_dir,
+                  "continue the run in DIR from its checkpoint (e.g. --set run.t_end=LATER to extend a finished run)");
   run->add_option("--set,-s", sets, "override a key by dotted path, e.g. particles.n_inf=3200 (repeatable)")
       ->allow_extra_args(false)
       ->take_all();
@@ -115,6 +148,35 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
     }
   }
 
+  const bool resume = run->parsed() && !resume_dir.empty();
+  if (run->parsed()) {
+    if (resume) {
+      if (!config.empty() || !out_dir.empty())
+        return error(err, "--resume DIR takes neither CONFIG nor --out: the run's directory holds both (try --help)",
+                     kUsage);
+      std::error_code ec;
+      if (!std::filesystem::is_regular_file(std::filesystem::path(resume_dir) / "checkpoint.bin", ec) ||
+          !std::filesystem::is_regular_file(std::filesystem::path(resume_dir) / "config.toml", ec))
+        return error(err, "--resume = \"" + resume_dir + "\": no checkpoint.bin and config.toml of an otfp run there",
+                     kUsage);
+      for (const std::string& set : sets) {
+        const std::string key = set.substr(0, set.find('='));
+        bool allowed = false;
+        for (const char* k : kResumeKeys) allowed = allowed || key == k;
+        if (!allowed)
+          return error(err,
+                       "--set " + set + ": cannot change on --resume (only run.t_end, run.max_steps, run.vtk_interval, "
+                                        "run.checkpoint_interval, run.threads)",
+                       kUsage);
+      }
+      config = (std::filesystem::path(resume_dir) / "config.toml").string();
+      out_dir = resume_dir;
+    } else if (config.empty() || out_dir.empty()) {
+      return error(err, std::string(config.empty() ? "CONFIG" : "--out") + " is required (or --resume DIR) (try --help)",
+                   kUsage);
+    }
+  }
+
   int code = 0;
   std::unique_ptr<Simulation> sim = load(config, sets, err, code);
   if (!sim) return code;
@@ -133,7 +195,20 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   ro.out_dir = dir;
   ro.progress = !quiet && &err == &std::cerr && ::isatty(STDERR_FILENO);
   ro.keep_series = false;
-  const RunResult r = sim->run(ro);
+  ro.resume = resume;
+  ro.stop_flag = &g_stop;
+  RunResult r;
+  {
+    const StopSignals signals;
+    r = sim->run(ro);
+  }
+  if (r.nothing_to_do) {
+    if (!quiet)
+      err << fmt::format("otfp: {} is already at step {}, t = {}: nothing to do (extend it with --set run.t_end=...)\n",
+                         out_dir, r.last.step, r.last.t);
+    return 0;
+  }
+  if (r.exit_code == kExitInterrupted) return error(err, r.error, kExitInterrupted);
   if (r.exit_code != 0)
     return error(err,
                  fmt::format("{} (the files in {} are complete up to step {}, t = {})", r.error, out_dir, r.last.step,

@@ -9,6 +9,8 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <csignal>
+#include <fstream>
 #include <iostream>
 #include <limits>
 #include <numbers>
@@ -22,6 +24,7 @@
 #include "otfp/mass_measure.hpp"
 #include "otfp/neighbor_list.hpp"
 #include "otfp/parameters.hpp"
+#include "otfp/particle_io.hpp"
 #include "otfp/simulation.hpp"
 #include "otfp/stepper.hpp"
 #include "otfp/time_step_control.hpp"
@@ -97,6 +100,26 @@ struct ErrorStats {
     return e;
   }
 
+  // The whole state, for checkpoints.
+  nlohmann::json state() const {
+    return {{"measured", measured}, {"scale_rule", scale_rule}, {"scale", scale},     {"max_abs", max_abs},
+            {"l1_time", l1_time},   {"final_error", final_error}, {"l1_measured", l1_measured},
+            {"l1_reference", l1_reference}, {"t_prev", t_prev}, {"e_prev", e_prev}, {"m_prev", m_prev},
+            {"r_prev", r_prev},     {"t_first", t_first},       {"started", started}};
+  }
+  static ErrorStats from_state(const nlohmann::json& j) {
+    ErrorStats e;
+    e.measured = j.at("measured").get<std::string>();
+    e.scale_rule = j.at("scale_rule").get<std::string>();
+    for (auto [key, field] : {std::pair{"scale", &e.scale}, {"max_abs", &e.max_abs}, {"l1_time", &e.l1_time},
+                              {"final_error", &e.final_error}, {"l1_measured", &e.l1_measured},
+                              {"l1_reference", &e.l1_reference}, {"t_prev", &e.t_prev}, {"e_prev", &e.e_prev},
+                              {"m_prev", &e.m_prev}, {"r_prev", &e.r_prev}, {"t_first", &e.t_first}})
+      *field = j.at(key).get<double>();
+    e.started = j.at("started").get<bool>();
+    return e;
+  }
+
   nlohmann::json json() const {
     const double span = t_prev - t_first;
     return {{"measured", measured},
@@ -126,7 +149,77 @@ double invert_cosine_cdf(double u, double a, double k) {
   return xi;
 }
 
-constexpr double kNoErrorLimit = std::numeric_limits<double>::infinity();
+// Checkpoint state of the driver's running sums (doubles round-trip exactly in JSON).
+nlohmann::json measures_state(const StateMeasures& m) {
+  return {m.n_particles, m.n_inside, m.n_buffer, m.n_outside, m.mass_total, m.mass_inside, m.mass_with_layer,
+          m.polar_inertia, m.polar_inertia_with_layer, m.polar_inertia_total, m.mean_age, m.max_age};
+}
+StateMeasures measures_from_state(const nlohmann::json& j) {
+  StateMeasures m;
+  m.n_particles = j.at(0).get<std::int64_t>();
+  m.n_inside = j.at(1).get<std::int64_t>();
+  m.n_buffer = j.at(2).get<std::int64_t>();
+  m.n_outside = j.at(3).get<std::int64_t>();
+  double* fields[] = {&m.mass_total, &m.mass_inside, &m.mass_with_layer, &m.polar_inertia, &m.polar_inertia_with_layer,
+                      &m.polar_inertia_total, &m.mean_age, &m.max_age};
+  for (std::size_t i = 0; i < 8; ++i) *fields[i] = j.at(4 + i).get<double>();
+  return m;
+}
+nlohmann::json l1_state(const L1Norms& l) {
+  return {l.mass_rectangle, l.polar_inertia_rectangle, l.mass_inside_trapezoid, l.mass_with_layer_trapezoid,
+          l.polar_inertia_inside_trapezoid, l.polar_inertia_with_layer_trapezoid};
+}
+L1Norms l1_from_state(const nlohmann::json& j) {
+  L1Norms l;
+  double* fields[] = {&l.mass_rectangle, &l.polar_inertia_rectangle, &l.mass_inside_trapezoid,
+                      &l.mass_with_layer_trapezoid, &l.polar_inertia_inside_trapezoid,
+                      &l.polar_inertia_with_layer_trapezoid};
+  for (std::size_t i = 0; i < 6; ++i) *fields[i] = j.at(i).get<double>();
+  return l;
+}
+
+// The lines of a CSV file whose first field (the step) is <= k, header kept.
+std::string csv_up_to_step(const std::filesystem::path& file, std::int64_t k) {
+  std::ifstream f(file);
+  if (!f) throw RunError("cannot read " + file.string() + " to resume");
+  std::string line, text;
+  bool header = true;
+  while (std::getline(f, line)) {
+    if (header || (!line.empty() && std::stoll(line.substr(0, line.find(','))) <= k)) text += line + "\n";
+    header = false;
+  }
+  return text;
+}
+
+// particles.fill = "file": the particles of a CSV (the columns of
+// particles_final.csv) or of one of our .vtp files, wrapped into a periodic
+// cell (check_fill_file checks where they are once the buffers are known).
+ParticleSet read_fill_file(const Config& c, const DomainPtr& domain) {
+  const std::string& file = *c.particles.fill_file;
+  ParticleSet ps(c.run.dim);
+  try {
+    ps = read_particles(file, c.run.dim);
+  } catch (const InvalidArgument& e) {
+    throw ConfigError("particles.fill_file", std::string("particles.fill_file: ") + e.what());
+  }
+  for (Vec3& x : ps.positions()) x = domain->wrap(x);
+  return ps;
+}
+
+// Every particle of the file inside Omega or in the buffer outside a
+// Dirichlet patch (a run's final state holds its reservoir band); free space
+// takes any point.
+void check_fill_file(const Config& c, const otfp::Simulation& sim, const ParticleSet& ps) {
+  if (c.domain.type == "free") return;
+  for (std::size_t p = 0; p < ps.size(); ++p) {
+    const Vec3& x = ps.positions()[p];
+    if (region_of(sim.domain(), sim.buffer(), x) == otfp::Region::Elsewhere)
+      throw ConfigError("particles.fill_file", quoted(*c.particles.fill_file),
+                        fmt::format("particle id {} at ({}, {}, {}) lies outside the domain and its Dirichlet buffers "
+                                    "(signed distance {})",
+                                    ps.ids()[p], x[0], x[1], x[2], sim.domain().signed_distance(x)));
+  }
+}
 
 // Discrete decay factor per step of the mode exp(-lambda t) under the time
 // scheme alone (exact in space), as a rate: what the stepper would give
@@ -151,6 +244,7 @@ double time_discrete_rate(const std::string& scheme, double lambda, double dt) {
 struct Simulation::State {
   detail::BuiltDomain built;
   std::unique_ptr<otfp::Simulation> sim;  // Algorithm 1
+  std::optional<ParticleSet> file_particles;  // particles.fill = "file": read (and checked) once
 };
 
 Simulation::~Simulation() = default;
@@ -252,6 +346,10 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
       }
     d.M_inf = area > 0.0 ? ga / area * d.volume : 0.0;
     d.M_inf_rule = "area-weighted mean Dirichlet g x |Omega|";
+  } else if (pa.fill == "file") {
+    st.file_particles = read_fill_file(c, domain_);
+    d.M_inf = st.file_particles->total_mass() + d.neumann_net_inflow;
+    d.M_inf_rule = "mass of particles.fill_file + net Neumann inflow over [0, t_end]";
   } else if (pa.fill != "empty" && pa.fill_mass) {
     d.M_inf = *pa.fill_mass + d.neumann_net_inflow;
     d.M_inf_rule = "particles.fill_mass + net Neumann inflow over [0, t_end]";
@@ -288,6 +386,9 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
           std::max<std::int64_t>(1, std::llround((c.domain.hi[k] - c.domain.lo[k]) / d.dr));
       d.fill_count *= d.lattice_counts[static_cast<std::size_t>(k)];
     }
+  } else if (pa.fill == "file") {
+    if (!st.file_particles) st.file_particles = read_fill_file(c, domain_);
+    d.fill_count = static_cast<std::int64_t>(st.file_particles->size());
   } else if (pa.fill != "empty") {
     if (pa.fill_count) {
       d.fill_count = *pa.fill_count;
@@ -452,6 +553,7 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
   } catch (const InvalidArgument& e) {
     throw ConfigError("solver", std::string("solver: ") + e.what());
   }
+  if (st.file_particles) check_fill_file(c, *st.sim, *st.file_particles);
   d.barrier_domain = st.sim->barrier_domain_description();
   d.mirrored_walls = st.sim->mirrored_walls();
 }
@@ -940,49 +1042,8 @@ RunResult Simulation::run(const RunOptions& options) {
   };
 
   StepRecord last;
+  bool interrupted = false;
   try {
-    // Initial fill.
-    ParticleSet fill(dim);
-    const double m_p = d.particle_mass;
-    for (std::int64_t i = 0; i < d.fill_count; ++i) {
-      Vec3 x;
-      if (c.particles.fill_arrangement == "lattice" || c.particles.fill == "cosine") {
-        // Lattice: cell centres; random: uniform. The cosine fill then maps x
-        // through the inverse cumulative density of 1 + a cos(k x).
-        x = Vec3::Zero();
-        std::int64_t rest = i;
-        for (int k = 0; k < dim; ++k) {
-          const double lo = c.domain.lo[k], len = c.domain.hi[k] - c.domain.lo[k];
-          if (c.particles.fill_arrangement == "lattice") {
-            const std::int64_t nk = d.lattice_counts[static_cast<std::size_t>(k)];
-            x[k] = lo + (static_cast<double>(rest % nk) + 0.5) * len / static_cast<double>(nk);
-            rest /= nk;
-          } else {
-            x[k] = lo + len * rng.uniform();
-          }
-        }
-        if (c.particles.fill == "cosine")
-          x[0] = c.domain.lo[0] + invert_cosine_cdf(x[0] - c.domain.lo[0], c.particles.fill_amplitude, d.mode_wavenumber);
-      } else if (c.particles.fill == "gaussian") {
-        const Vec3 ctr = c.particles.fill_center.value_or(d.center);
-        x = Vec3::Zero();
-        for (int k = 0; k < dim; ++k) x[k] = ctr[k] + c.particles.fill_sigma * rng.normal();
-        x = domain_->wrap(x);
-      } else {
-        x = domain_->sample_interior(rng);
-      }
-      fill.add(x, d.width_s, m_p, 0.0);
-    }
-    n0 = static_cast<std::int64_t>(fill.size());
-    M0 = fill.total_mass();
-
-    if (write) {
-      std::filesystem::create_directories(out);
-      series_file = AppendFile(out / "series.csv", header);
-      timing_file = AppendFile(out / "timing.csv", "step,t,wall_seconds,step_seconds,solver_seconds,list_seconds\n");
-      write_file_atomic(out / "summary.json", summary("running", "", StepRecord{}).dump(2) + "\n");
-    }
-
     auto emit = [&](const StepRecord& r, bool final_row) {
       const std::string line = csv_row(r);
       if (write) {
@@ -997,46 +1058,180 @@ RunResult Simulation::run(const RunOptions& options) {
       show_progress(r, final_row);
     };
 
-    // Algorithm 1 runs in the library; the reservoir (if any) is filled
-    // before the first step, counted as step 0's insertions.
-    sim.start(std::move(fill), rng, 0.0);
-    emit(diagnostics(0, 0.0, nullptr, sim.initial_step().inserted, sim.initial_step().removed), false);
+    // Fixed dt: step k ends at t_origin + (k - k_origin) dt_run, the last one on
+    // t_end exactly (a resumed run keeps the grid when its dt is unchanged).
+    double t_origin = 0.0, dt_run = d.dt;
+    std::int64_t k_origin = 0, n_total = d.n_steps, k_done = 0;
+    const std::filesystem::path checkpoint_file = out / "checkpoint.bin";
+    // The driver's running sums, kept in the checkpoint next to the library state.
+    auto driver_state = [&]() {
+      nlohmann::json js;
+      js["l1"] = l1_state(l1);
+      js["prev_measures"] = measures_state(prev_measures);
+      js["S0"] = S0;
+      js["A0"] = A0;
+      js["mode_log"] = mode_log;
+      js["mode_fit_open"] = mode_fit_open;
+      js["ref_stats"] = nlohmann::json::array();
+      for (const ErrorStats& e : ref_stats) js["ref_stats"].push_back(e.state());
+      js["blob_stats"] = blob_stats.state();
+      js["snapshots"] = snapshots;
+      js["last_snapshot"] = last_snapshot;
+      js["n0"] = n0;
+      js["M0"] = M0;
+      js["t_origin"] = t_origin;
+      js["k_origin"] = k_origin;
+      js["dt_run"] = dt_run;
+      js["last_step"] = last.step;
+      js["last_t"] = last.t;
+      js["last_mass_ratio"] = last.mass_ratio;
+      js["last_n"] = last.n_particles;
+      return js;
+    };
+    auto write_checkpoint = [&]() {
+      if (write) sim.save_checkpoint(checkpoint_file, driver_state().dump());
+    };
 
-    // Fixed dt: step k covers [(k-1) dt, k dt]. Adaptive dt (run.dt_mode):
-    // the library's controller proposes each step and undoes the tries its
-    // error test rejects.
+    if (!options.resume) {
+      // Initial fill.
+      ParticleSet fill(dim);
+      const double m_p = d.particle_mass;
+      if (st.file_particles) fill = *st.file_particles;
+      for (std::int64_t i = 0; !st.file_particles && i < d.fill_count; ++i) {
+        Vec3 x;
+        if (c.particles.fill_arrangement == "lattice" || c.particles.fill == "cosine") {
+          // Lattice: cell centres; random: uniform. The cosine fill then maps x
+          // through the inverse cumulative density of 1 + a cos(k x).
+          x = Vec3::Zero();
+          std::int64_t rest = i;
+          for (int k = 0; k < dim; ++k) {
+            const double lo = c.domain.lo[k], len = c.domain.hi[k] - c.domain.lo[k];
+            if (c.particles.fill_arrangement == "lattice") {
+              const std::int64_t nk = d.lattice_counts[static_cast<std::size_t>(k)];
+              x[k] = lo + (static_cast<double>(rest % nk) + 0.5) * len / static_cast<double>(nk);
+              rest /= nk;
+            } else {
+              x[k] = lo + len * rng.uniform();
+            }
+          }
+          if (c.particles.fill == "cosine")
+            x[0] = c.domain.lo[0] + invert_cosine_cdf(x[0] - c.domain.lo[0], c.particles.fill_amplitude, d.mode_wavenumber);
+        } else if (c.particles.fill == "gaussian") {
+          const Vec3 ctr = c.particles.fill_center.value_or(d.center);
+          x = Vec3::Zero();
+          for (int k = 0; k < dim; ++k) x[k] = ctr[k] + c.particles.fill_sigma * rng.normal();
+          x = domain_->wrap(x);
+        } else {
+          x = domain_->sample_interior(rng);
+        }
+        fill.add(x, d.width_s, m_p, 0.0);
+      }
+      n0 = static_cast<std::int64_t>(fill.size());
+      M0 = fill.total_mass();
+
+      if (write) {
+        std::filesystem::create_directories(out);
+        series_file = AppendFile(out / "series.csv", header);
+        timing_file = AppendFile(out / "timing.csv", "step,t,wall_seconds,step_seconds,solver_seconds,list_seconds\n");
+        write_file_atomic(out / "config.toml", to_toml(c));
+        write_file_atomic(out / "summary.json", summary("running", "", StepRecord{}).dump(2) + "\n");
+      }
+
+      // Algorithm 1 runs in the library; the reservoir (if any) is filled
+      // before the first step, counted as step 0's insertions.
+      sim.start(std::move(fill), rng, 0.0);
+      emit(diagnostics(0, 0.0, nullptr, sim.initial_step().inserted, sim.initial_step().removed), false);
+    } else {
+      std::string extra;
+      sim.load_checkpoint(checkpoint_file, &extra);
+      const nlohmann::json js = nlohmann::json::parse(extra);
+      l1 = l1_from_state(js.at("l1"));
+      prev_measures = measures_from_state(js.at("prev_measures"));
+      S0 = js.at("S0").get<double>();
+      A0 = js.at("A0").get<double>();
+      mode_log = js.at("mode_log").get<std::vector<std::pair<double, double>>>();
+      mode_fit_open = js.at("mode_fit_open").get<bool>();
+      ref_stats.clear();
+      for (const auto& e : js.at("ref_stats")) ref_stats.push_back(ErrorStats::from_state(e));
+      blob_stats = ErrorStats::from_state(js.at("blob_stats"));
+      snapshots = js.at("snapshots").get<std::vector<std::pair<double, std::string>>>();
+      last_snapshot = js.at("last_snapshot").get<std::int64_t>();
+      n0 = js.at("n0").get<std::int64_t>();
+      M0 = js.at("M0").get<double>();
+      last.step = js.at("last_step").get<std::int64_t>();
+      last.t = js.at("last_t").get<double>();
+      last.mass_ratio = js.at("last_mass_ratio").get<double>();
+      last.n_particles = js.at("last_n").get<std::int64_t>();
+      k_done = sim.step_count();
+      if (!(js.at("k_origin").get<std::int64_t>() == 0 && js.at("dt_run").get<double>() == d.dt)) {
+        // A new t_end changed dt = t_end / n_steps: the rest of the run gets
+        // its own equal steps from the checkpoint on.
+        const double dt0 = c.run.dt ? *c.run.dt : c.run.dt_factor * d.dt_explicit;
+        t_origin = sim.time();
+        k_origin = k_done;
+        const std::int64_t m = std::max<std::int64_t>(
+            1, static_cast<std::int64_t>(std::ceil((c.run.t_end - t_origin) / dt0 * (1.0 - 1e-12))));
+        dt_run = (c.run.t_end - t_origin) / static_cast<double>(m);
+        n_total = k_done + m;
+      }
+      step_dt = dt_run;
+      const bool done = c.run.dt_mode == "adaptive"
+                            ? sim.time() >= c.run.t_end || (c.run.max_steps > 0 && k_done >= c.run.max_steps)
+                            : k_done >= (c.run.max_steps > 0 ? std::min(n_total, c.run.max_steps) : n_total);
+      if (done) {
+        result.status = "completed";
+        result.nothing_to_do = true;
+        result.last = last;
+        return result;
+      }
+      // The rows after the checkpoint (a run killed between checkpoints) are taken again.
+      series_file = AppendFile(out / "series.csv", csv_up_to_step(out / "series.csv", k_done));
+      timing_file = AppendFile(out / "timing.csv", csv_up_to_step(out / "timing.csv", k_done));
+      write_file_atomic(out / "summary.json", summary("running", "", last).dump(2) + "\n");
+    }
+    const std::int64_t steps_to_run = c.run.max_steps > 0 ? std::min(n_total, c.run.max_steps) : n_total;
+
+    // Adaptive dt (run.dt_mode): the library's controller proposes each step
+    // and undoes the tries its error test rejects.
     const bool adaptive = c.run.dt_mode == "adaptive";
-    if (adaptive) {
+    if (adaptive && !options.resume) {
       const TimeStepControlOptions& tco = sim.options().time_control;
       sim.set_next_dt(std::min(std::max(d.dt, tco.dt_min), tco.dt_max));
     }
-    for (std::int64_t k = 1;; ++k) {
+    for (std::int64_t k = k_done + 1;; ++k) {
       SimulationStep step;
       if (!adaptive) {
-        if (k > d.steps_to_run) break;
-        step = sim.advance_to(k == d.n_steps ? c.run.t_end : static_cast<double>(k) * d.dt);
+        if (k > steps_to_run) break;
+        step = sim.advance_to(k == n_total ? c.run.t_end : t_origin + static_cast<double>(k - k_origin) * dt_run);
       } else {
         if (sim.time() >= c.run.t_end || (c.run.max_steps > 0 && k > c.run.max_steps)) break;
         step = sim.advance_adaptive(c.run.t_end);
       }
-      step_dt = adaptive ? step.dt() : d.dt;
+      step_dt = adaptive ? step.dt() : dt_run;
       step_rejections = step.error_rejections;
+      const bool stop = (options.stop_flag && *options.stop_flag) ||
+                        (options.stop_after_step > 0 && k >= options.stop_after_step);
+      const bool final_row = adaptive ? step.t_end >= c.run.t_end || k == c.run.max_steps : k == steps_to_run;
       emit(diagnostics(k, step.t_end, &step.diffusion, static_cast<long>(step.inserted), static_cast<long>(step.removed)),
-           adaptive ? step.t_end >= c.run.t_end || k == c.run.max_steps : k == d.steps_to_run);
-    }
-    if (write) {
-      // Final particles as CSV (widths for histograms, positions for profiles).
-      std::string text = "id,x,y,z,width_s,beta,mass,birth_time,region\n";
-      for (std::size_t p = 0; p < particles.size(); ++p) {
-        const Vec3& x = particles.positions()[p];
-        const double sp = particles.widths()[p];
-        text += fmt::format("{},{},{},{},{},{},{},{},{}\n", particles.ids()[p], x[0], x[1], x[2], sp, 1.0 / (sp * sp),
-                            particles.masses()[p], particles.birth_times()[p], region[p]);
+           final_row || stop);
+      if (stop && !final_row) {
+        interrupted = true;
+        break;
       }
-      write_file_atomic(out / "particles_final.csv", text);
+      if (!final_row && c.run.checkpoint_interval > 0 && k % c.run.checkpoint_interval == 0) write_checkpoint();
     }
-    result.status = "completed";
-    result.exit_code = 0;
+    write_checkpoint();
+    if (interrupted) {
+      result.status = "interrupted";
+      result.error = fmt::format("interrupted after step {} (t = {}); continue with: otfp run --resume {}", last.step,
+                                 last.t, out.string());
+      result.exit_code = kExitInterrupted;
+    } else {
+      // Final particles as CSV (widths for histograms, positions for profiles).
+      if (write) write_file_atomic(out / "particles_final.csv", particles_csv(particles, region));
+      result.status = "completed";
+      result.exit_code = 0;
+    }
   } catch (const std::exception& e) {
     result.status = "failed";
     result.error = e.what();

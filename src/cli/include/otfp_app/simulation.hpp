@@ -6,6 +6,7 @@
 // builds all library objects; it throws ConfigError (exit code 2) and never
 // touches the file system. run() creates the output directory and steps.
 #include <array>
+#include <csignal>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -98,15 +99,23 @@ struct StepRecord {
   double wall_seconds = 0.0, step_seconds = 0.0, solver_seconds = 0.0, list_seconds = 0.0;
 };
 
+// Exit code of a run stopped by SIGINT/SIGTERM (checkpoint written; continue
+// with `otfp run --resume DIR`). 0 completed, 1 failed, 2 bad input.
+constexpr int kExitInterrupted = 3;
+
 struct RunOptions {
   std::filesystem::path out_dir;  // empty: write nothing (in-memory run for tests)
   bool progress = false;          // progress line on stderr
   bool keep_series = true;        // keep every StepRecord in RunResult::series
+  bool resume = false;            // continue from out_dir/checkpoint.bin (series.csv cut back to its step)
+  const volatile std::sig_atomic_t* stop_flag = nullptr;  // set (by a signal handler): stop after the current step
+  std::int64_t stop_after_step = 0;  // > 0: stop as if signalled after this step (tests)
 };
 
 struct RunResult {
-  int exit_code = 0;              // 0 completed, 1 failed
-  std::string status;             // "completed" | "failed"
+  int exit_code = 0;              // 0 completed, 1 failed, kExitInterrupted
+  std::string status;             // "completed" | "failed" | "interrupted"
+  bool nothing_to_do = false;     // resume: the checkpoint is already at run.t_end (no file touched)
   std::string error;              // why it failed
   std::vector<StepRecord> series;
   StepRecord last;

@@ -1,0 +1,199 @@
+// Restart (checkpoints, --resume, interruption) and runs that start from a
+// particle file (particles.fill = "file").
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "app_test_support.hpp"
+#include "otfp_app/cli.hpp"
+#include "otfp_app/config.hpp"
+#include "otfp_app/simulation.hpp"
+
+namespace fs = std::filesystem;
+using namespace otfp::app;
+using otfp::test::fresh_dir;
+using otfp::test::read_text;
+
+namespace {
+
+const fs::path kExamples = fs::path(OTFP_SOURCE_DIR) / "examples";
+
+// A small sphere run on an exact time grid (dt = 2^-8), so that t_end = k dt
+// holds exactly and a run extended to a later t_end keeps its grid.
+std::vector<std::string> small_sphere(int steps, bool adaptive) {
+  std::vector<std::string> sets = {"particles.n_inf=200", "run.dt=0.00390625",
+                                   "run.t_end=" + std::to_string(steps * 0.00390625), "run.vtk_interval=4",
+                                   "run.checkpoint_interval=5", "treatment.reservoir_width=0.5"};
+  if (adaptive) sets.insert(sets.end(), {"run.dt_mode=adaptive", "solver.time_scheme=bdf2"});
+  return sets;
+}
+
+RunResult run_config(const std::vector<std::string>& sets, const fs::path& dir, std::int64_t stop_after = 0) {
+  RunOptions ro;
+  ro.out_dir = dir;
+  ro.keep_series = false;
+  ro.stop_after_step = stop_after;
+  return Simulation(parse_config_file(kExamples / "sphere_dirichlet.toml", sets)).run(ro);
+}
+
+std::vector<std::string> lines_of(const std::string& text) {
+  std::vector<std::string> out;
+  std::istringstream in(text);
+  for (std::string line; std::getline(in, line);) out.push_back(line);
+  return out;
+}
+
+int cli(const std::vector<std::string>& args, std::string& err) {
+  std::vector<const char*> argv = {"otfp"};
+  for (const std::string& a : args) argv.push_back(a.c_str());
+  std::ostringstream out, e;
+  const int code = cli_main(static_cast<int>(argv.size()), argv.data(), out, e);
+  err = e.str();
+  return code;
+}
+
+}  // namespace
+
+// Stopped after step 7 (2 with adaptive steps; as by SIGINT: checkpoint written, status
+// "interrupted", exit code 3) and resumed: series.csv and the final particles
+// are identical byte for byte to the uninterrupted run, for fixed and
+// adaptive steps.
+TEST(Restart, InterruptedRunResumesToTheSameSeries) {
+  for (const bool adaptive : {false, true}) {
+    SCOPED_TRACE(adaptive ? "adaptive BDF2" : "fixed dt");
+    const fs::path full = fresh_dir("restart_full"), cut = fresh_dir("restart_cut");
+    ASSERT_EQ(run_config(small_sphere(12, adaptive), full).exit_code, 0);
+    // Adaptive steps grow: stop early enough to leave steps after the stop.
+    const RunResult r = run_config(small_sphere(12, adaptive), cut, adaptive ? 2 : 7);
+    ASSERT_EQ(r.exit_code, kExitInterrupted) << r.error;
+    EXPECT_EQ(r.status, "interrupted");
+    EXPECT_EQ(nlohmann::json::parse(read_text(cut / "summary.json"))["status"], "interrupted");
+    EXPECT_TRUE(fs::exists(cut / "checkpoint.bin"));
+    EXPECT_FALSE(fs::exists(cut / "particles_final.csv"));
+    std::string err;
+    ASSERT_EQ(cli({"run", "--resume", cut.string(), "--quiet"}, err), 0) << err;
+    EXPECT_EQ(read_text(full / "series.csv"), read_text(cut / "series.csv"));
+    EXPECT_EQ(read_text(full / "particles_final.csv"), read_text(cut / "particles_final.csv"));
+    EXPECT_EQ(nlohmann::json::parse(read_text(cut / "summary.json"))["status"], "completed");
+    fs::remove_all(full);
+    fs::remove_all(cut);
+  }
+}
+
+// A finished run extended with --set run.t_end=LATER equals the run made to
+// LATER at once; resuming without a later t_end changes nothing.
+TEST(Restart, FinishedRunExtendsToTheSameSeries) {
+  const fs::path full = fresh_dir("extend_full"), part = fresh_dir("extend_part");
+  ASSERT_EQ(run_config(small_sphere(10, false), full).exit_code, 0);
+  ASSERT_EQ(run_config(small_sphere(5, false), part).exit_code, 0);
+  const std::string before = read_text(part / "series.csv");
+  std::string err;
+  ASSERT_EQ(cli({"run", "--resume", part.string(), "--quiet"}, err), 0) << err;
+  EXPECT_EQ(read_text(part / "series.csv"), before) << "nothing to do";
+  ASSERT_EQ(cli({"run", "--resume", part.string(), "--quiet", "--set", "run.t_end=" + std::to_string(10 * 0.00390625)},
+                err),
+            0)
+      << err;
+  EXPECT_EQ(read_text(full / "series.csv"), read_text(part / "series.csv"));
+  EXPECT_EQ(read_text(full / "particles_final.csv"), read_text(part / "particles_final.csv"));
+  fs::remove_all(full);
+  fs::remove_all(part);
+}
+
+// A run killed between checkpoints has rows after its last checkpoint: the
+// resumed run takes them again from the checkpoint, so the series is still
+// the uninterrupted one (no duplicate, no missing row).
+TEST(Restart, RowsAfterTheLastCheckpointAreTakenAgain) {
+  const fs::path full = fresh_dir("kill_full"), cut = fresh_dir("kill_cut");
+  ASSERT_EQ(run_config(small_sphere(12, false), full).exit_code, 0);
+  ASSERT_EQ(run_config(small_sphere(12, false), cut, 5).exit_code, kExitInterrupted);
+  // What a SIGKILL after step 7 leaves: the rows of steps 6 and 7 without a checkpoint.
+  const std::vector<std::string> rows = lines_of(read_text(full / "series.csv"));
+  {
+    std::ofstream f(cut / "series.csv", std::ios::app);
+    f << rows[7] << "\n" << rows[8] << "\n";  // rows[0] is the header
+  }
+  std::string err;
+  ASSERT_EQ(cli({"run", "--resume", cut.string(), "--quiet"}, err), 0) << err;
+  EXPECT_EQ(read_text(full / "series.csv"), read_text(cut / "series.csv"));
+  fs::remove_all(full);
+  fs::remove_all(cut);
+}
+
+// --resume refuses, with one line and exit code 2, what it cannot continue.
+TEST(Restart, ResumeRefusesWhatItCannotContinue) {
+  const fs::path dir = fresh_dir("resume_bad");
+  ASSERT_EQ(run_config(small_sphere(3, false), dir).exit_code, 0);
+  std::string err;
+  struct Bad {
+    std::vector<std::string> args;
+    std::string starts;
+  };
+  const std::vector<Bad> bad = {
+      {{"run", "--resume", dir.string(), "--set", "solver.backend=nlopt"}, "otfp: error: --set solver.backend=nlopt:"},
+      {{"run", "--resume", (dir / "nothing").string()}, "otfp: error: --resume = "},
+      {{"run", (kExamples / "sphere_dirichlet.toml").string(), "--resume", dir.string()}, "otfp: error: --resume DIR"},
+      {{"run", "--out", dir.string()}, "otfp: error: CONFIG is required"},
+  };
+  for (const Bad& b : bad) {
+    EXPECT_EQ(cli(b.args, err), 2) << b.starts;
+    EXPECT_EQ(err.rfind(b.starts, 0), 0u) << err;
+    EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+  }
+  // A damaged checkpoint: the run fails (exit 1) naming the file.
+  {
+    std::string bytes = read_text(dir / "checkpoint.bin");
+    bytes[bytes.size() / 2] ^= 0x01;
+    std::ofstream f(dir / "checkpoint.bin", std::ios::binary | std::ios::trunc);
+    f << bytes;
+  }
+  EXPECT_EQ(cli({"run", "--resume", dir.string(), "--quiet", "--set", "run.t_end=0.02"}, err), 1);
+  EXPECT_NE(err.find("checksum"), std::string::npos) << err;
+  fs::remove_all(dir);
+}
+
+// particles.fill = "file": a run starts from another run's final particles
+// (ids, widths, masses and birth times as written), and bad files are
+// refused before any output exists.
+TEST(FillFile, RunStartsFromTheParticlesOfAFile) {
+  const fs::path first = fresh_dir("fill_first"), second = fresh_dir("fill_second");
+  const std::vector<std::string> papers = {"particles.n_inf=200", "run.max_steps=3", "treatment.preset=papers"};
+  ASSERT_EQ(run_config(papers, first).exit_code, 0);
+  const auto final_rows = otfp::test::read_csv(first / "particles_final.csv");
+  double mass = 0.0;
+  for (const auto& row : final_rows) mass += std::stod(row.at("mass"));
+  std::vector<std::string> sets = papers;
+  sets.insert(sets.end(), {"particles.fill=file", "particles.fill_file=" + (first / "particles_final.csv").string()});
+  ASSERT_EQ(run_config(sets, second).exit_code, 0);
+  const auto series = otfp::test::read_csv(second / "series.csv");
+  EXPECT_EQ(std::stoul(series.at(0).at("n_particles")), final_rows.size());
+  EXPECT_NEAR(std::stod(series.at(0).at("mass_total")), mass, 1e-12 * mass);
+  EXPECT_EQ(std::stoul(series.at(0).at("inserted")), 0u);
+  fs::remove_all(second);
+
+  // Bad files: exit 2, one line naming particles.fill_file, nothing written.
+  const fs::path bad = first / "bad.csv";
+  for (const std::string& content : {std::string("id,x,y,z,width_s,mass\n0,0,0,0,-1,0.01\n"),
+                                     std::string("id,x,y,z,width_s,mass\n0,5,0,0,0.1,0.01\n"),
+                                     std::string("x,y\n0,0\n")}) {
+    {
+      std::ofstream f(bad);
+      f << content;
+    }
+    std::string err;
+    EXPECT_EQ(cli({"run", (kExamples / "sphere_dirichlet.toml").string(), "--out", second.string(), "--set",
+                   "particles.fill=file", "--set", "particles.fill_file=" + bad.string()},
+                  err),
+              2)
+        << content;
+    EXPECT_EQ(err.rfind("otfp: error: particles.fill_file", 0), 0u) << err;
+    EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+    EXPECT_FALSE(fs::exists(second));
+  }
+  fs::remove_all(first);
+}
