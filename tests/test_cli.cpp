@@ -546,8 +546,16 @@ TEST(Cli, OutputFilesAreCompleteAndVtkParses) {
   std::vector<std::string> files;
   for (std::size_t pos = pvd.find("<DataSet"); pos != std::string::npos; pos = pvd.find("<DataSet", pos + 1))
     files.push_back(attributes(pvd.substr(pos, pvd.find('>', pos) - pos)).at("file"));
+  // Each time also shows domain.vtp, the boundary surface (part 1).
+  std::vector<std::string> particle_files;
+  for (const std::string& f : files)
+    if (f != "domain.vtp") particle_files.push_back(f);
+  EXPECT_EQ(files.size(), 2 * particle_files.size());
+  files = particle_files;
   ASSERT_EQ(files, (std::vector<std::string>{"particles_00000.vtp", "particles_00004.vtp", "particles_00008.vtp",
                                              "particles_00010.vtp"}));
+  const std::string surface = read_text(dir / "domain.vtp");
+  EXPECT_NE(surface.find("<Polys>"), std::string::npos);
 
   for (const std::string& f : files) {
     SCOPED_TRACE(f);
@@ -588,9 +596,10 @@ TEST(Cli, OutputFilesAreCompleteAndVtkParses) {
       EXPECT_EQ(bytes, static_cast<std::uint64_t>(n) * comps * size) << a.at("Name");
       expected_total += 8 + bytes;
     }
-    // mass, beta, width_s, age, id, region, position, connectivity, offsets;
-    // with zero particles also density (declared so that ParaView lists it).
-    EXPECT_EQ(arrays, n == 0 ? 10 : 9);
+    // mass, beta, width_s, age, id, region, density, position, connectivity, offsets.
+    EXPECT_EQ(arrays, 10);
+    EXPECT_NE(head.find("Name=\"density\""), std::string::npos);
+    EXPECT_NE(head.find("Name=\"width_s\""), std::string::npos);
     EXPECT_EQ(data.size(), expected_total);
   }
   fs::remove_all(dir);

@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdio>
 #include <csignal>
+#include <deque>
 #include <fstream>
 #include <iostream>
 #include <limits>
@@ -23,7 +24,10 @@
 #include "otfp/images.hpp"
 #include "otfp/mass_measure.hpp"
 #include "otfp/neighbor_list.hpp"
+#include "otfp/density.hpp"
 #include "otfp/parameters.hpp"
+#include "otfp/surface.hpp"
+#include "otfp/vtk.hpp"
 #include "otfp/particle_io.hpp"
 #include "otfp/simulation.hpp"
 #include "otfp/stepper.hpp"
@@ -883,9 +887,16 @@ RunResult Simulation::run(const RunOptions& options) {
     for (const Vec3& x : particles.positions())
       if (!x.allFinite()) throw RunError(fmt::format("non-finite particle position at step {}", r.step));
     const std::string name = fmt::format("particles_{:05d}.vtp", r.step);
-    write_file_atomic(out / name, vtp_document(particles, r.t, region));
+    // The blob density (29) at each particle (images across mirrored walls not included).
+    std::vector<double> rho;
+    if (!particles.empty())
+      blob_density(particles, particles.positions(),
+                   domain_->is_periodic() ? Periodicity::from_domain(*domain_) : Periodicity::none(dim),
+                   c.solver.kernel_tolerance, rho, nullptr);
+    write_file_atomic(out / name, vtp_document(particles, r.t, region, rho));
     snapshots.emplace_back(r.t, name);
-    write_file_atomic(out / "particles.pvd", pvd_document(snapshots));
+    write_file_atomic(out / "particles.pvd",
+                      pvd_document(snapshots, std::filesystem::exists(out / "domain.vtp") ? "domain.vtp" : ""));
     last_snapshot = r.step;
   };
 
@@ -1020,18 +1031,46 @@ RunResult Simulation::run(const RunOptions& options) {
     return j;
   };
 
+  // domain.vtp: the boundary of Omega and, where there is one, the outer
+  // surface of the buffer over the Dirichlet patches (its cells carry patch
+  // id + the number of patches), shown by particles.pvd at every time.
+  auto write_domain_surface = [&](const std::filesystem::path& dir) {
+    if (free_space_) return;
+    const int cells = dim == 3 ? 32 : 256;  // a display mesh: ~1 MB in 3-D
+    SurfaceMesh mesh = boundary_surface(*domain_, 0.0, cells);
+    std::vector<int> dirichlet;
+    for (const PatchInfo& p : patches_)
+      if (p.kind == "dirichlet") dirichlet.push_back(p.id);
+    const double buffer = sim.buffer().buffer_width;
+    if (!dirichlet.empty() && buffer > 0.0) {
+      const SurfaceMesh outer = boundary_surface(*domain_, buffer, cells, dirichlet);
+      const auto base = static_cast<std::int64_t>(mesh.points.size());
+      mesh.points.insert(mesh.points.end(), outer.points.begin(), outer.points.end());
+      for (std::int64_t i : outer.cells) mesh.cells.push_back(base + i);
+      for (int patch : outer.patch) mesh.patch.push_back(patch + domain_->num_patches());
+    }
+    if (mesh.num_cells() > 0) write_file_atomic(dir / "domain.vtp", surface_vtp(mesh));
+  };
+
   const bool progress = options.progress;
   auto last_progress = Clock::now() - std::chrono::seconds(1);
+  // (wall, progress) at the recent progress lines: the ETA uses the rate over
+  // the last ~20 of them (a few seconds), not the average since the start,
+  // which the first steps (filling, the first solves) skew.
+  std::deque<std::pair<double, double>> recent;
   auto show_progress = [&](const StepRecord& r, bool final_line) {
     if (!progress) return;
     const auto now = Clock::now();
     if (!final_line && now - last_progress < std::chrono::milliseconds(200)) return;
     last_progress = now;
-    const double el = wall();
     // Adaptive dt: the number of steps is not known; time is.
-    const double eta = c.run.dt_mode == "adaptive" ? (r.t > 0.0 ? el / r.t * (c.run.t_end - r.t) : 0.0)
-                       : r.step > 0 ? el / static_cast<double>(r.step) * static_cast<double>(d.steps_to_run - r.step)
-                                    : 0.0;
+    const bool by_time = c.run.dt_mode == "adaptive";
+    const double done = by_time ? r.t : static_cast<double>(r.step);
+    const double total = by_time ? c.run.t_end : static_cast<double>(d.steps_to_run);
+    recent.emplace_back(wall(), done);
+    if (recent.size() > 20) recent.pop_front();
+    const double dw = recent.back().first - recent.front().first, dp = recent.back().second - recent.front().second;
+    const double eta = dp > 0.0 ? dw / dp * std::max(0.0, total - done) : 0.0;
     const double its = r.step > 0 ? static_cast<double>(sim.totals().iterations) / static_cast<double>(r.step) : 0.0;
     std::fprintf(stderr, "\rstep %lld/%s  t=%.4g  n=%lld  M/M_inf=%.4f  it/step=%.1f  ETA %s   ",
                  static_cast<long long>(r.step),
@@ -1134,6 +1173,7 @@ RunResult Simulation::run(const RunOptions& options) {
         series_file = AppendFile(out / "series.csv", header);
         timing_file = AppendFile(out / "timing.csv", "step,t,wall_seconds,step_seconds,solver_seconds,list_seconds\n");
         write_file_atomic(out / "config.toml", to_toml(c));
+        write_domain_surface(out);
         write_file_atomic(out / "summary.json", summary("running", "", StepRecord{}).dump(2) + "\n");
       }
 
