@@ -395,17 +395,55 @@ void Simulation::finish_step(SimulationStep& s) {
 
 void Simulation::check_ledger(std::int64_t k, double t) const {
   const SimulationLedger& l = ledger_;
-  const std::int64_t expect_n = l.initial_particles + l.inserted - l.removed;
+  const std::int64_t expect_n = l.expected_particles();
   if (static_cast<std::int64_t>(particles_.size()) != expect_n)
     throw StepFailure(format("particle ledger violated at step {} (t = {}): n = {} but n(0) + inserted - removed "
                                   "= {} + {} - {} = {}",
                                   k, t, particles_.size(), l.initial_particles, l.inserted, l.removed, expect_n));
   const double mass_now = particles_.total_mass();
-  const double mass_expect = l.initial_mass + l.mass_inserted - l.mass_removed;
+  const double mass_expect = l.expected_mass();
   if (!(std::abs(mass_now - mass_expect) <= 1e-9 * (l.initial_mass + l.mass_inserted + options_.particle_mass)))
     throw StepFailure(format("mass ledger violated at step {} (t = {}): mass = {} but M(0) + inserted - removed "
                                   "= {}",
                                   k, t, mass_now, mass_expect));
+}
+
+std::string SimulationStep::brief_report() const {
+  return format("step {}: t = {} (dt = {}), F = {}, {} evaluations, +{} -{} particles", step, t_end, dt(),
+                diffusion.f_after, diffusion.evaluations, inserted, removed);
+}
+
+std::string SimulationStep::full_report() const {
+  std::string r = brief_report() + "\n";
+  r += format("  diffusion: {} ({} iterations, {} halvings, {} list builds), F {} -> {}\n", to_string(diffusion.reason),
+              diffusion.iterations, diffusion.halvings, diffusion.list_builds, diffusion.f_before, diffusion.f_after);
+  r += format("  parts after: transport {}, entropy {}, barrier {}\n", diffusion.parts_after.transport,
+              diffusion.parts_after.entropy, diffusion.parts_after.barrier);
+  if (std::isfinite(diffusion.error_estimate))
+    r += format("  error estimate {} (order {})\n", diffusion.error_estimate, diffusion.error_order);
+  if (error_rejections > 0 || forced_at_dt_min || dt_next > 0.0)
+    r += format("  adaptive: {} tries rejected, {}next dt {}\n", error_rejections,
+                forced_at_dt_min ? "forced at dt_min, " : "", dt_next);
+  r += format("  reflected {}, wall {} s\n", reflected, wall_seconds);
+  return r;
+}
+
+std::string Simulation::full_report() const {
+  const SimulationLedger& l = ledger_;
+  const SimulationTotals& t = totals_;
+  std::string r = format("t = {} after {} steps: {} particles, mass {}\n", time_, step_, particles_.size(),
+                         particles_.total_mass());
+  r += format("  ledger: n(0) = {} + inserted {} - removed {} (source +{} -{}), reflected {}\n", l.initial_particles,
+              l.inserted, l.removed, l.source_inserted, l.source_removed, l.reflected);
+  r += format("  mass: M(0) = {} + {} - {}\n", l.initial_mass, l.mass_inserted, l.mass_removed);
+  r += format("  solver: {} iterations, {} evaluations, {} rejected solves, {} halvings\n", t.iterations,
+              t.evaluations, t.rejected_solves, t.halvings);
+  if (t.error_rejected_steps > 0 || t.steps_forced_at_dt_min > 0)
+    r += format("  adaptive: {} tries rejected, {} steps forced at dt_min\n", t.error_rejected_steps,
+                t.steps_forced_at_dt_min);
+  r += format("  time: {} s in diffusion steps ({} s solver, {} s neighbour lists)\n", t.step_seconds,
+              t.solver_seconds, t.list_seconds);
+  return r;
 }
 
 void Simulation::require_started(const char* what) const {

@@ -75,12 +75,18 @@ TEST(Simulation, LedgerBalancesEveryStep) {
     const SimulationStep s = sim->advance(disc.pp.dt_explicit);
     n += s.inserted - s.removed;
     EXPECT_EQ(s.step, k);
+    EXPECT_EQ(s.brief_report().rfind("step " + std::to_string(k) + ": t = ", 0), 0u) << s.brief_report();
+    EXPECT_EQ(s.brief_report().find('\n'), std::string::npos);
     EXPECT_EQ(s.diffusion.inserted, s.inserted) << "StepSummary carries the step's counts";
     EXPECT_EQ(s.diffusion.removed, s.removed);
     EXPECT_EQ(static_cast<std::int64_t>(sim->particles().size()), n);
   }
   const SimulationLedger& l = sim->ledger();
   EXPECT_NEAR(sim->particles().total_mass(), l.initial_mass + l.mass_inserted - l.mass_removed, 1e-12);
+  // The reports say what the ledger says.
+  const std::string report = sim->full_report();
+  EXPECT_NE(report.find("inserted " + std::to_string(l.inserted)), std::string::npos) << report;
+  EXPECT_NE(report.find("after 4 steps"), std::string::npos) << report;
   EXPECT_DOUBLE_EQ(sim->time(), 4 * disc.pp.dt_explicit);
 }
 

@@ -24,6 +24,7 @@
 #include "otfp/boundary.hpp"
 #include "otfp/diagnostics.hpp"
 #include "otfp/geometry.hpp"
+#include "otfp/ledger.hpp"
 #include "otfp/particles.hpp"
 #include "otfp/stepper.hpp"
 #include "otfp/time_step_control.hpp"
@@ -93,17 +94,6 @@ class StepFailure : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-// Counts of everything that entered or left, for the ledger check and output.
-struct SimulationLedger {
-  std::int64_t initial_particles = 0;
-  double initial_mass = 0.0;
-  std::int64_t inserted = 0, removed = 0;           // all causes
-  double mass_inserted = 0.0, mass_removed = 0.0;
-  std::int64_t source_inserted = 0, source_removed = 0;
-  double source_mass_inserted = 0.0, source_mass_removed = 0.0;
-  std::int64_t reflected = 0;  // particles put back across mirrored walls (moved, not removed)
-};
-
 // Totals over the steps taken (wall times are not reproducible).
 struct SimulationTotals {
   std::int64_t iterations = 0, evaluations = 0, rejected_solves = 0, halvings = 0;
@@ -124,6 +114,11 @@ struct SimulationStep {
   double dt_next = 0.0;           // advance_adaptive(): the controller's next proposal
   double wall_seconds = 0.0;
   double dt() const { return t_end - t_start; }
+  // One line: step, time, dt, F, evaluations, insertions and removals.
+  std::string brief_report() const;
+  // Several lines: the above and the solver's termination, F's parts, the
+  // error estimate and the adaptive tries.
+  std::string full_report() const;
 };
 
 class Simulation {
@@ -172,6 +167,8 @@ class Simulation {
   const std::vector<ConstantBoundaryData>& boundary() const { return boundary_; }
   const SimulationLedger& ledger() const { return ledger_; }
   const SimulationTotals& totals() const { return totals_; }
+  // The run so far: time, steps, particles, ledger and solver totals (several lines).
+  std::string full_report() const;
   // Per condition, in the order of `boundary` minus the no-flux entries;
   // condition_of(patch) gives the index or -1.
   const BoundaryProjection& projection() const { return *projection_; }
