@@ -22,6 +22,7 @@
 #include "otfp/barrier.hpp"
 #include "otfp/fractional.hpp"
 #include "otfp/images.hpp"
+#include "otfp/initial_fill.hpp"
 #include "otfp/mass_measure.hpp"
 #include "otfp/neighbor_list.hpp"
 #include "otfp/density.hpp"
@@ -138,20 +139,6 @@ struct ErrorStats {
             {"l1_norm_relative_error", l1_reference != 0.0 ? (l1_measured - l1_reference) / l1_reference : 0.0}};
   }
 };
-
-// Solves xi + (a/k) sin(k xi) = u for xi (the inverse of the cumulative
-// density of 1 + a cos(k xi), a < 1: strictly increasing, Newton converges).
-double invert_cosine_cdf(double u, double a, double k) {
-  double xi = u;
-  for (int it = 0; it < 100; ++it) {
-    const double f = xi + a / k * std::sin(k * xi) - u;
-    const double df = 1.0 + a * std::cos(k * xi);
-    const double step = f / df;
-    xi -= step;
-    if (std::abs(step) <= 1e-15 * (1.0 + std::abs(xi))) break;
-  }
-  return xi;
-}
 
 // Checkpoint state of the driver's running sums (doubles round-trip exactly in JSON).
 nlohmann::json measures_state(const StateMeasures& m) {
@@ -1134,36 +1121,25 @@ RunResult Simulation::run(const RunOptions& options) {
     if (!options.resume) {
       // Initial fill.
       ParticleSet fill(dim);
-      const double m_p = d.particle_mass;
-      if (st.file_particles) fill = *st.file_particles;
-      for (std::int64_t i = 0; !st.file_particles && i < d.fill_count; ++i) {
-        Vec3 x;
-        if (c.particles.fill_arrangement == "lattice" || c.particles.fill == "cosine") {
-          // Lattice: cell centres; random: uniform. The cosine fill then maps x
-          // through the inverse cumulative density of 1 + a cos(k x).
-          x = Vec3::Zero();
-          std::int64_t rest = i;
-          for (int k = 0; k < dim; ++k) {
-            const double lo = c.domain.lo[k], len = c.domain.hi[k] - c.domain.lo[k];
-            if (c.particles.fill_arrangement == "lattice") {
-              const std::int64_t nk = d.lattice_counts[static_cast<std::size_t>(k)];
-              x[k] = lo + (static_cast<double>(rest % nk) + 0.5) * len / static_cast<double>(nk);
-              rest /= nk;
-            } else {
-              x[k] = lo + len * rng.uniform();
-            }
-          }
-          if (c.particles.fill == "cosine")
-            x[0] = c.domain.lo[0] + invert_cosine_cdf(x[0] - c.domain.lo[0], c.particles.fill_amplitude, d.mode_wavenumber);
-        } else if (c.particles.fill == "gaussian") {
-          const Vec3 ctr = c.particles.fill_center.value_or(d.center);
-          x = Vec3::Zero();
-          for (int k = 0; k < dim; ++k) x[k] = ctr[k] + c.particles.fill_sigma * rng.normal();
-          x = domain_->wrap(x);
-        } else {
-          x = domain_->sample_interior(rng);
-        }
-        fill.add(x, d.width_s, m_p, 0.0);
+      if (st.file_particles) {
+        fill = *st.file_particles;
+      } else if (d.fill_count > 0) {  // a lattice is filled whatever particles.fill says
+        FillOptions fo;
+        fo.shape = c.particles.fill == "gaussian" ? FillShape::Gaussian
+                   : c.particles.fill == "cosine" ? FillShape::Cosine
+                                                  : FillShape::Uniform;
+        fo.count = d.fill_count;
+        fo.width_s = d.width_s;
+        fo.mass = d.particle_mass;
+        fo.lattice = c.particles.fill_arrangement == "lattice";
+        fo.lattice_counts = d.lattice_counts;
+        fo.lo = c.domain.lo;
+        fo.hi = c.domain.hi;
+        fo.center = c.particles.fill_center.value_or(d.center);
+        fo.sigma = c.particles.fill_sigma;
+        fo.amplitude = c.particles.fill_amplitude;
+        fo.wavenumber = d.mode_wavenumber;
+        fill = fill_particles(*domain_, fo, rng);
       }
       n0 = static_cast<std::int64_t>(fill.size());
       M0 = fill.total_mass();
