@@ -37,7 +37,7 @@ using otfp::test::fresh_dir;
 using otfp::test::read_text;
 
 RunResult run_config(Config config, const fs::path& out = {}) {
-  Simulation sim(std::move(config));
+  ConfiguredRun sim(std::move(config));
   RunOptions o;
   o.out_dir = out;
   return sim.run(o);

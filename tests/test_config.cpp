@@ -56,7 +56,7 @@ value = 0.25
 // Parses and builds; returns the ConfigError message ("" if accepted).
 std::string rejection(const std::string& text, const std::vector<std::string>& sets = {}) {
   try {
-    Simulation sim(parse_config_string(text, sets));
+    ConfiguredRun sim(parse_config_string(text, sets));
   } catch (const ConfigError& e) {
     return e.what();
   }
@@ -114,12 +114,12 @@ TEST(Config, EveryKeyIsDocumented) {
 }
 
 TEST(Config, TreatmentKeysReachTheRun) {
-  Simulation papers(parse_config_string(kBase, {"treatment.preset=papers"}));
+  ConfiguredRun papers(parse_config_string(kBase, {"treatment.preset=papers"}));
   EXPECT_EQ(papers.derived().mirrored_walls, 0);
   EXPECT_EQ(papers.derived().reservoir_width, 0.0);
   EXPECT_EQ(papers.config().particles.spacing_rule, "sphere_radius");
   // The default preset ("converging"): the odd reservoir, whose back face is mirrored, and the true spacing.
-  Simulation converging(parse_config_string(kBase));
+  ConfiguredRun converging(parse_config_string(kBase));
   EXPECT_EQ(converging.config().treatment.preset, "converging");
   EXPECT_EQ(converging.config().treatment.dirichlet, "reservoir");
   EXPECT_EQ(converging.config().treatment.reservoir_profile, "odd");
@@ -135,7 +135,7 @@ TEST(Config, TreatmentKeysReachTheRun) {
   const Config explicit_rule = parse_config_string(kBase, {"treatment.preset=papers", "particles.spacing_rule=cube"});
   EXPECT_EQ(explicit_rule.particles.spacing_rule, "cube");
   EXPECT_EQ(parse_config_string(kBase, {"treatment.preset=papers", "run.dim=2"}).particles.spacing_rule, "cube");
-  Simulation reservoir(parse_config_string(kBase, {"particles.n_inf=1600", "treatment.dirichlet=reservoir",
+  ConfiguredRun reservoir(parse_config_string(kBase, {"particles.n_inf=1600", "treatment.dirichlet=reservoir",
                                                    "treatment.reservoir_width=1.5", "treatment.reservoir_profile=odd"}));
   const Derived& d = reservoir.derived();
   // w = 1.5 r_c with r_c = s sqrt(ln(1e8)); sublayers round(2 w / dr); the band's back face is mirrored.
@@ -150,13 +150,13 @@ TEST(Config, TreatmentKeysReachTheRun) {
   EXPECT_EQ(again.treatment.reservoir_profile, "odd");
   // A box with one Dirichlet face: images at the five others (papers' layer),
   // and the reservoir's back face as well under the default preset.
-  Simulation box(parse_config_file(std::filesystem::path(OTFP_SOURCE_DIR) / "examples" / "box_mixed.toml",
+  ConfiguredRun box(parse_config_file(std::filesystem::path(OTFP_SOURCE_DIR) / "examples" / "box_mixed.toml",
                                    {"treatment.preset=papers", "treatment.no_flux=images"}));
   EXPECT_EQ(box.derived().mirrored_walls, 5);
-  Simulation box_default(parse_config_file(std::filesystem::path(OTFP_SOURCE_DIR) / "examples" / "box_mixed.toml"));
+  ConfiguredRun box_default(parse_config_file(std::filesystem::path(OTFP_SOURCE_DIR) / "examples" / "box_mixed.toml"));
   EXPECT_EQ(box_default.derived().mirrored_walls, 6);
   // The square pipe: six faces and the obstacle (a round wall with the domain outside).
-  Simulation pipe(parse_config_file(std::filesystem::path(OTFP_SOURCE_DIR) / "examples" / "square_pipe_occlusion.toml"));
+  ConfiguredRun pipe(parse_config_file(std::filesystem::path(OTFP_SOURCE_DIR) / "examples" / "square_pipe_occlusion.toml"));
   EXPECT_EQ(pipe.derived().mirrored_walls, 7);
 }
 
@@ -298,7 +298,7 @@ TEST(Config, EveryExampleIsValid) {
     if (entry.path().extension() != ".toml") continue;
     ++count;
     SCOPED_TRACE(entry.path().string());
-    EXPECT_NO_THROW({ Simulation sim(parse_config_file(entry.path())); });
+    EXPECT_NO_THROW({ ConfiguredRun sim(parse_config_file(entry.path())); });
   }
   EXPECT_GE(count, 6);
 }
@@ -307,7 +307,7 @@ TEST(Config, EveryExampleIsValid) {
 // treatment.preset = "papers".
 TEST(Config, ExamplesReproduceThePapersTables) {
   {
-    Simulation s(parse_config_file(kSource / "examples" / "sphere_dirichlet.toml",
+    ConfiguredRun s(parse_config_file(kSource / "examples" / "sphere_dirichlet.toml",
                                    {"particles.n_inf=1600", "treatment.preset=papers"}));
     EXPECT_NEAR(s.derived().dr, 0.085498797, 1e-8);      // Table 1
     EXPECT_NEAR(s.derived().beta, 273.59615, 1e-4);
@@ -315,7 +315,7 @@ TEST(Config, ExamplesReproduceThePapersTables) {
     EXPECT_NEAR(s.derived().layer_b, std::sqrt(0.085498797), 1e-8);
   }
   {
-    Simulation s(parse_config_file(kSource / "examples" / "box_mixed.toml", {"treatment.preset=papers"}));
+    ConfiguredRun s(parse_config_file(kSource / "examples" / "box_mixed.toml", {"treatment.preset=papers"}));
     EXPECT_NEAR(s.derived().dr, 0.10607847, 1e-7);       // Table 2, n_inf = 400
     EXPECT_NEAR(s.derived().beta, 177.73604, 1e-4);
     EXPECT_NEAR(s.derived().particle_mass, 2.5, 1e-12);
@@ -323,7 +323,7 @@ TEST(Config, ExamplesReproduceThePapersTables) {
     EXPECT_NEAR(*s.derived().J_inf, 500.0, 1e-9);          // (48)
   }
   {
-    Simulation s(parse_config_file(kSource / "examples" / "pipe_neumann.toml", {"run.t_end=6", "treatment.preset=papers"}));
+    ConfiguredRun s(parse_config_file(kSource / "examples" / "pipe_neumann.toml", {"run.t_end=6", "treatment.preset=papers"}));
     EXPECT_NEAR(s.derived().dr, 0.0721, 1e-4);           // Table 3, n_initial = 1000
     EXPECT_NEAR(s.derived().layer_b, 0.190, 1e-3);
     EXPECT_NEAR(s.derived().dt, 0.0052, 1e-5);
@@ -335,7 +335,7 @@ TEST(Config, ExamplesReproduceThePapersTables) {
 
 TEST(Config, DefaultMinfAndJinfFollowTheDomain) {
   // Dirichlet ball: M_inf = g |Omega|, J_inf = 3/5 M_inf R^2 about the centre.
-  Simulation s(parse_config_string(kBase));
+  ConfiguredRun s(parse_config_string(kBase));
   const double vol = 4.0 / 3.0 * M_PI;
   EXPECT_NEAR(s.derived().M_inf, 0.25 * vol, 1e-12);
   ASSERT_TRUE(s.derived().J_inf.has_value());
@@ -353,7 +353,7 @@ kind = "neumann"
 value = -3.0
 t_end = 4.0
 )";
-  Simulation s2(parse_config_string(inj));
+  ConfiguredRun s2(parse_config_string(inj));
   EXPECT_NEAR(s2.derived().neumann_net_inflow, 12.0, 1e-12);
   EXPECT_NEAR(s2.derived().M_inf, 12.0, 1e-12);
   EXPECT_NEAR(*s2.derived().J_inf, 12.0 * 3.0 / 12.0, 1e-12);  // unit cube about its centre
@@ -409,8 +409,8 @@ TEST(Config, WidthExponent) {
   EXPECT_DOUBLE_EQ(b.particles.width_exponent, 0.5);
   EXPECT_EQ(b.particles.width_reference_n, 800);
   // q = 1 is the papers' width bit for bit, whatever width_reference_n.
-  const Simulation base(parse_config_string(kBase));
-  const Simulation one(parse_config_string(kBase, {"particles.width_exponent=1", "particles.width_reference_n=7"}));
+  const ConfiguredRun base(parse_config_string(kBase));
+  const ConfiguredRun one(parse_config_string(kBase, {"particles.width_exponent=1", "particles.width_reference_n=7"}));
   const double dr = base.derived().dr;
   EXPECT_EQ(one.derived().width_s, base.derived().width_s);
   EXPECT_EQ(one.derived().beta, base.derived().beta);
@@ -418,7 +418,7 @@ TEST(Config, WidthExponent) {
   EXPECT_EQ(base.derived().width_s, 1.0 / std::sqrt(2.0 / (dr * dr)));
   // kBase: unit ball, cube rule, n_inf = 100; with n_ref = 800, dr / dr_ref = 2 and
   // q = 1/2 gives s = (dr / sqrt(2)) 2^(-1/2) = dr / 2.
-  const Simulation half(a);
+  const ConfiguredRun half(a);
   EXPECT_EQ(half.derived().dr, dr);
   EXPECT_NEAR(half.derived().width_reference_dr, dr / 2.0, 1e-15);
   EXPECT_NEAR(half.derived().width_s, dr / 2.0, 1e-15);
@@ -453,7 +453,7 @@ TEST(Config, ExamplesBetaTimesTrueSpacingSquared) {
     for (const bool papers : {false, true}) {
       std::vector<std::string> sets;
       if (papers) sets.push_back("treatment.preset=papers");
-      const Simulation s(parse_config_file(kSource / "examples" / e.name, sets));
+      const ConfiguredRun s(parse_config_file(kSource / "examples" / e.name, sets));
       EXPECT_NEAR(s.derived().beta_true_spacing2, papers ? e.papers : e.converging, 1e-4) << e.name << " " << papers;
       EXPECT_NEAR(s.derived().true_spacing,
                   std::pow(s.derived().volume / static_cast<double>(s.config().particles.n_inf), 1.0 / s.config().run.dim),
@@ -822,7 +822,7 @@ TEST(Config, FillFromFile) {
 TEST(Config, ResolvedJsonHoldsEveryKeyOfTheTable) {
   for (const std::string name : {"pipe_neumann.toml", "box_mixed.toml", "sphere_injection.toml"}) {
     SCOPED_TRACE(name);
-    const Simulation sim(parse_config_file(kSource / "examples" / name));
+    const ConfiguredRun sim(parse_config_file(kSource / "examples" / name));
     const nlohmann::json cfg = sim.describe()["config"];
     for (const std::string& key : schema_keys()) {
       // "a.b" or "a[].b" / "a.b[].c": every element of the array holds the key.

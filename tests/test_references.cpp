@@ -24,7 +24,7 @@ namespace {
 const fs::path kExamples = fs::path(OTFP_SOURCE_DIR) / "examples";
 
 RunResult run_example(const std::string& name, const std::vector<std::string>& sets, const fs::path& out = {}) {
-  Simulation sim(parse_config_file(kExamples / name, sets));
+  ConfiguredRun sim(parse_config_file(kExamples / name, sets));
   RunOptions o;
   o.out_dir = out;
   return sim.run(o);

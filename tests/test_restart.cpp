@@ -38,7 +38,7 @@ RunResult run_config(const std::vector<std::string>& sets, const fs::path& dir, 
   ro.out_dir = dir;
   ro.keep_series = false;
   ro.stop_after_step = stop_after;
-  return Simulation(parse_config_file(kExamples / "sphere_dirichlet.toml", sets)).run(ro);
+  return ConfiguredRun(parse_config_file(kExamples / "sphere_dirichlet.toml", sets)).run(ro);
 }
 
 std::vector<std::string> lines_of(const std::string& text) {

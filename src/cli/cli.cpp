@@ -59,10 +59,10 @@ int error(std::ostream& err, const std::string& message, int code) {
 }
 
 // Parses and checks everything; nullptr after printing the error.
-std::unique_ptr<Simulation> load(const std::string& config, const std::vector<std::string>& sets, std::ostream& err,
+std::unique_ptr<ConfiguredRun> load(const std::string& config, const std::vector<std::string>& sets, std::ostream& err,
                                  int& code) {
   try {
-    return std::make_unique<Simulation>(parse_config_file(config, sets));
+    return std::make_unique<ConfiguredRun>(parse_config_file(config, sets));
   } catch (const ConfigError& e) {
     code = error(err, e.what(), kUsage);
   } catch (const std::exception& e) {
@@ -178,7 +178,7 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   }
 
   int code = 0;
-  std::unique_ptr<Simulation> sim = load(config, sets, err, code);
+  std::unique_ptr<ConfiguredRun> sim = load(config, sets, err, code);
   if (!sim) return code;
 
   if (check->parsed()) {

@@ -232,15 +232,15 @@ double time_discrete_rate(const std::string& scheme, double lambda, double dt) {
 }  // namespace
 
 // Everything that changes while running.
-struct Simulation::State {
+struct ConfiguredRun::State {
   detail::BuiltDomain built;
   std::unique_ptr<otfp::Simulation> sim;  // Algorithm 1
   std::optional<ParticleSet> file_particles;  // particles.fill = "file": read (and checked) once
 };
 
-Simulation::~Simulation() = default;
+ConfiguredRun::~ConfiguredRun() = default;
 
-Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::make_unique<State>()) {
+ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_(std::make_unique<State>()) {
   const Config& c = config_;
   const int dim = c.run.dim;
   State& st = *state_;
@@ -549,7 +549,7 @@ Simulation::Simulation(Config config) : config_(std::move(config)), state_(std::
   d.mirrored_walls = st.sim->mirrored_walls();
 }
 
-nlohmann::json Simulation::describe() const {
+nlohmann::json ConfiguredRun::describe() const {
   const Config& c = config_;
   const Derived& d = derived_;
   // The resolved configuration: every key of the table, defaults filled in.
@@ -600,7 +600,7 @@ nlohmann::json Simulation::describe() const {
   return {{"config", cfg}, {"derived", der}};
 }
 
-RunResult Simulation::run(const RunOptions& options) {
+RunResult ConfiguredRun::run(const RunOptions& options) {
   const Config& c = config_;
   const Derived& d = derived_;
   State& st = *state_;

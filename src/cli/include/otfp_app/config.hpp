@@ -172,7 +172,7 @@ struct Config {
 };
 
 // Parses, applies the overrides ("a.b=value", in order) and validates every
-// value that does not need the geometry (Simulation checks the rest).
+// value that does not need the geometry (ConfiguredRun checks the rest).
 Config parse_config_file(const std::filesystem::path& file, const std::vector<std::string>& overrides = {});
 Config parse_config_string(std::string_view toml_text, const std::vector<std::string>& overrides = {},
                            const std::string& source = "<string>");

@@ -1,8 +1,9 @@
 #pragma once
-// The run driver of Algorithm 1: advection, source, diffusion (implicit or
-// explicit), boundary projection, diagnostics (43)-(46) and output.
+// A run as the CLI makes it: the configuration turned into the papers'
+// numbers (36)-(40) and an otfp::Simulation (the library's Algorithm 1),
+// then the steps with their rows, snapshots, checkpoints and summary.
 //
-// Simulation's constructor does every check that needs the geometry and
+// ConfiguredRun's constructor does every check that needs the geometry and
 // builds all library objects; it throws ConfigError (exit code 2) and never
 // touches the file system. run() creates the output directory and steps.
 #include <array>
@@ -122,12 +123,12 @@ struct RunResult {
   nlohmann::json summary;         // what summary.json holds
 };
 
-class Simulation {
+class ConfiguredRun {
  public:
-  explicit Simulation(Config config);
-  ~Simulation();
-  Simulation(const Simulation&) = delete;
-  Simulation& operator=(const Simulation&) = delete;
+  explicit ConfiguredRun(Config config);
+  ~ConfiguredRun();
+  ConfiguredRun(const ConfiguredRun&) = delete;
+  ConfiguredRun& operator=(const ConfiguredRun&) = delete;
 
   RunResult run(const RunOptions& options);
 
