@@ -10,9 +10,10 @@
 #include <cmath>
 #include <cstdlib>
 
+#include "otfp/explicit_stepper.hpp"
 #include "otfp/geometry.hpp"
+#include "otfp/implicit_stepper.hpp"
 #include "otfp/parameters.hpp"
-#include "otfp/stepper.hpp"
 
 using namespace otfp;
 

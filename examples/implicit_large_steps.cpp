@@ -13,8 +13,8 @@
 #include <string>
 
 #include "otfp/geometry.hpp"
+#include "otfp/implicit_stepper.hpp"
 #include "otfp/parameters.hpp"
-#include "otfp/stepper.hpp"
 #include "otfp/time_step_control.hpp"
 
 int main(int argc, char** argv) {

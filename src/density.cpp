@@ -2,6 +2,8 @@
 
 #include <cmath>
 
+#include "cell_grid.hpp"
+
 namespace otfp {
 
 namespace {

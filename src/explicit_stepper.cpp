@@ -3,7 +3,7 @@
 #include <string>
 #include <cmath>
 
-#include "otfp/stepper.hpp"
+#include "otfp/explicit_stepper.hpp"
 
 namespace otfp {
 

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <limits>
 
-#include "otfp/stepper.hpp"
+#include "otfp/implicit_stepper.hpp"
 
 namespace otfp {
 

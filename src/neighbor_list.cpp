@@ -8,6 +8,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "cell_grid.hpp"
 #include "otfp/geometry.hpp"
 
 namespace otfp {
@@ -39,126 +40,20 @@ void NeighborOptions::validate() const {
   require(std::isfinite(skin_factor) && skin_factor >= 0.0, "skin_factor", skin_factor, "must be finite and >= 0");
 }
 
-// ---------------------------------------------------------------- CellGrid
-
-int CellGrid::cell_coord(double v, int axis) const {
-  // Clamped in double first: the cast of a far-away coordinate would overflow.
-  double t = std::clamp((v - origin_[axis]) / cell_width_[axis], -1e9, 1e9);
-  if (std::isnan(t)) t = 0.0;  // build() rejects NaN positions; a NaN query must not reach the cast
-  int c = static_cast<int>(std::floor(t));
-  if (per_.period[axis] > 0.0) {
-    if (c == n_[axis] && v < per_.lo[axis] + per_.period[axis]) return c - 1;  // round-off at the top edge
-    c %= n_[axis];
-    if (c < 0) c += n_[axis];
-    return c;
-  }
-  return std::clamp(c, 0, n_[axis] - 1);
-}
-
-void CellGrid::build(const std::vector<Vec3>& x, double cell_size, const Periodicity& periodicity, int reach) {
-  per_ = periodicity;
-  reach_ = std::max(1, reach);
-  const int dim = per_.dim;
-  const std::size_t n = x.size();
-  Vec3 lo = Vec3::Zero(), hi = Vec3::Zero();
-  if (n > 0) {
-    lo = x[0];
-    hi = x[0];
-    for (std::size_t i = 0; i < n; ++i) {
-      // A diverged explicit step (dt far above its limit) ends here first.
-      if (!x[i].allFinite())
-        throw std::runtime_error("non-finite position of particle " + std::to_string(i) +
-                                 ": the step diverged (an explicit dt above its stability limit?)");
-      lo = lo.cwiseMin(x[i]);
-      hi = hi.cwiseMax(x[i]);
-    }
-  }
-  // Cap the cell count near n so that sparse, spread-out clouds stay O(n) in
-  // memory: counts are computed in double (a cloud blown apart by an unstable
-  // step can span far more cells than an int holds), cells grown until they fit.
-  const double max_cells = std::max<double>(8.0, 2.0 * static_cast<double>(n));
-  double size = cell_size;
-  double counts[3] = {1.0, 1.0, 1.0};
-  for (int attempt = 0; attempt < 200; ++attempt) {
-    double total = 1.0;
-    for (int k = 0; k < dim; ++k) {
-      counts[k] = per_.period[k] > 0.0 ? std::max(1.0, std::floor(per_.period[k] / size))
-                                       : std::max(1.0, std::floor((hi[k] - lo[k]) / size) + 1.0);
-      total *= counts[k];
-    }
-    if (total <= max_cells) break;
-    size *= std::max(1.26, 0.5 * std::pow(total / max_cells, 1.0 / dim));
-  }
-  for (int k = 0; k < 3; ++k) {
-    if (k >= dim) {
-      n_[k] = 1;
-      origin_[k] = 0.0;
-      cell_width_[k] = 1.0;
-    } else if (per_.period[k] > 0.0) {
-      origin_[k] = per_.lo[k];
-      n_[k] = static_cast<int>(counts[k]);
-      cell_width_[k] = per_.period[k] / n_[k];
-    } else {
-      origin_[k] = lo[k];
-      n_[k] = static_cast<int>(counts[k]);
-      cell_width_[k] = size;
-    }
-  }
-  const std::size_t ncell = static_cast<std::size_t>(n_[0]) * n_[1] * n_[2];
-  cell_start_.assign(ncell + 1, 0);
-  // Points are stored wrapped into the periodic box: the shifts passed to
-  // for_each_cell assume it (an optimiser may move a particle across the box edge).
-  std::vector<Vec3> xw;
-  const bool wrap = per_.any();
-  if (wrap) {
-    xw.resize(n);
-    for (std::size_t i = 0; i < n; ++i) xw[i] = canonical(x[i]);
-  }
-  const std::vector<Vec3>& xs = wrap ? xw : x;
-  std::vector<std::uint32_t> cell_of(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    std::size_t c = 0;
-    for (int k = dim - 1; k >= 0; --k) c = c * n_[k] + cell_coord(xs[i][k], k);
-    cell_of[i] = static_cast<std::uint32_t>(c);
-    ++cell_start_[c + 1];
-  }
-  for (std::size_t c = 0; c < ncell; ++c) cell_start_[c + 1] += cell_start_[c];
-  items_.resize(n);
-  std::vector<std::uint32_t> fill(cell_start_.begin(), cell_start_.end() - 1);
-  for (std::size_t i = 0; i < n; ++i) items_[fill[cell_of[i]]++] = static_cast<std::uint32_t>(i);
-  sx_.resize(n);
-  sy_.resize(n);
-  sz_.resize(n);
-  for (std::size_t k = 0; k < n; ++k) {
-    sx_[k] = xs[items_[k]][0];
-    sy_[k] = xs[items_[k]][1];
-    sz_[k] = xs[items_[k]][2];
-  }
-  shifts_exact_ = true;
-  for (int k = 0; k < dim; ++k)
-    if (per_.period[k] > 0.0 && n_[k] < 2 * reach_ + 1) shifts_exact_ = false;
-}
-
-Vec3 CellGrid::canonical(const Vec3& a) const {
-  Vec3 y = per_.wrap(a);
-  for (int k = 0; k < 3; ++k)  // wrap() can round up to lo + period
-    if (per_.period[k] > 0.0 && y[k] >= per_.lo[k] + per_.period[k]) y[k] = per_.lo[k];
-  return y;
-}
-
-bool CellGrid::shifts_exact(int reach) const {
-  for (int k = 0; k < per_.dim; ++k)
-    if (per_.period[k] > 0.0 && n_[k] < 2 * reach + 1) return false;
-  return true;
-}
-
-double CellGrid::min_cell_width() const {
-  double h = cell_width_[0];
-  for (int k = 1; k < per_.dim; ++k) h = std::min(h, cell_width_[k]);
-  return h;
-}
-
 // ------------------------------------------------------------ NeighborList
+
+struct NeighborList::Workspace {
+  CellGrid grid;
+};
+
+NeighborList::WorkspaceHandle::WorkspaceHandle() = default;
+NeighborList::WorkspaceHandle::~WorkspaceHandle() = default;
+NeighborList::WorkspaceHandle::WorkspaceHandle(const WorkspaceHandle&) {}  // no grid: see the header
+NeighborList::WorkspaceHandle& NeighborList::WorkspaceHandle::operator=(const WorkspaceHandle&) {
+  return *this;  // keeps its own grid storage
+}
+NeighborList::WorkspaceHandle::WorkspaceHandle(WorkspaceHandle&&) noexcept = default;
+NeighborList::WorkspaceHandle& NeighborList::WorkspaceHandle::operator=(WorkspaceHandle&&) noexcept = default;
 
 NeighborList::NeighborList(NeighborOptions options) : options_(options) { options_.validate(); }
 
@@ -200,13 +95,15 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
     r_cell = std::sqrt(tmp[n / 2]);
   }
   constexpr int kReach = 2;
-  grid_.build(x, r_cell / kReach, per_, kReach);
-  const double h = grid_.min_cell_width();
+  if (!work_.ptr) work_.ptr = std::make_unique<Workspace>();
+  CellGrid& grid = work_.ptr->grid;
+  grid.build(x, r_cell / kReach, per_, kReach);
+  const double h = grid.min_cell_width();
   const double r2_min = n ? *std::min_element(radius_sq.begin(), radius_sq.end()) : 0.0;
-  const auto& items = grid_.items();
-  const double* sx = grid_.sorted_x().data();
-  const double* sy = grid_.sorted_y().data();
-  const double* sz = grid_.sorted_z().data();
+  const auto& items = grid.items();
+  const double* sx = grid.sorted_x().data();
+  const double* sy = grid.sorted_y().data();
+  const double* sz = grid.sorted_z().data();
   std::vector<double> sorted_r2(n);
   for (std::size_t k = 0; k < n; ++k) sorted_r2[k] = radius_sq[items[k]];
 
@@ -226,17 +123,17 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
     std::vector<double> dist_sq;
     for (std::size_t p = b * kBlock; p < end; ++p) {
       const std::size_t before = buf.size();
-      const Vec3 xp = grid_.canonical(x[p]);
+      const Vec3 xp = grid.canonical(x[p]);
       const double r2 = radius_sq[p];
       const bool may_have_extras = r2 > r2_min;
       // ceil(R_p / h) cells reach every point within R_p; the slack absorbs round-off in R_p / h.
       const int reach = std::max(1, static_cast<int>(std::ceil(std::sqrt(r2) / h - 1e-9)));
-      const bool exact_shifts = grid_.shifts_exact(reach);
+      const bool exact_shifts = grid.shifts_exact(reach);
       const auto pu = static_cast<std::uint32_t>(p);
       // Wide particles skip the cells of their cube that lie beyond R_p (about
       // half of them in 3D); at the median reach that bookkeeping costs more than it saves.
       const double prune_radius = reach > kReach ? std::sqrt(r2) : 0.0;
-      grid_.for_each_cell(xp, reach, prune_radius, [&](std::uint32_t cb, std::uint32_t ce, const Vec3& shift) {
+      grid.for_each_cell(xp, reach, prune_radius, [&](std::uint32_t cb, std::uint32_t ce, const Vec3& shift) {
         const std::uint32_t len = ce - cb;
         dist_sq.resize(len);
         double* d2 = dist_sq.data();

@@ -17,8 +17,9 @@
 #include <toml++/toml.h>
 
 #include "otfp/boundary.hpp"
+#include "otfp/explicit_stepper.hpp"
+#include "otfp/implicit_stepper.hpp"
 #include "otfp/minimizer.hpp"
-#include "otfp/stepper.hpp"
 #include "otfp_app/cli.hpp"
 #include "otfp_app/config.hpp"
 #include "otfp_app/simulation.hpp"

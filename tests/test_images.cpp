@@ -11,7 +11,7 @@
 #include "otfp/functional.hpp"
 #include "otfp/geometry.hpp"
 #include "otfp/images.hpp"
-#include "otfp/stepper.hpp"
+#include "otfp/implicit_stepper.hpp"
 #include "test_support.hpp"
 
 using namespace otfp;

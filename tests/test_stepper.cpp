@@ -5,10 +5,12 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "otfp/explicit_stepper.hpp"
+#include "otfp/external_potential.hpp"
 #include "otfp/fractional.hpp"
 #include "otfp/geometry.hpp"
+#include "otfp/implicit_stepper.hpp"
 #include "otfp/parameters.hpp"
-#include "otfp/stepper.hpp"
 #include "test_support.hpp"
 
 using namespace otfp;

@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "otfp/geometry.hpp"
-#include "otfp/stepper.hpp"
+#include "otfp/implicit_stepper.hpp"
 #include "otfp/time_step_control.hpp"
 
 using namespace otfp;

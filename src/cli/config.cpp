@@ -15,8 +15,9 @@
 #include <toml++/toml.h>
 
 #include "otfp/boundary.hpp"
+#include "otfp/explicit_stepper.hpp"
+#include "otfp/implicit_stepper.hpp"
 #include "otfp/minimizer.hpp"
-#include "otfp/stepper.hpp"
 
 namespace otfp::app {
 

@@ -18,7 +18,8 @@
 #include <string_view>
 #include <vector>
 
-#include "otfp/stepper.hpp"
+#include "otfp/explicit_stepper.hpp"
+#include "otfp/implicit_stepper.hpp"
 #include "otfp/types.hpp"
 
 namespace otfp::app {

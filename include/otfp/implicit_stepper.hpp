@@ -1,0 +1,124 @@
+#pragma once
+// The implicit variational step of the diffusive fractional step: minimise
+// (28) with Ceres or NLopt (docs/stepper.md). ImplicitOptions and the enums
+// of its options (WidthMode, TimeScheme, Predictor, with their string
+// conversions) live here; the report is StepSummary (step_summary.hpp).
+#include <cstddef>
+#include <limits>
+#include <string>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+#include "otfp/external_potential.hpp"
+#include "otfp/functional.hpp"
+#include "otfp/minimizer.hpp"
+#include "otfp/step_summary.hpp"
+
+namespace otfp {
+
+enum class WidthMode {
+  Fixed,       // widths stay as given (the papers' choice)
+  PerParticle  // one optimised width per particle, minimising (28) in s as well
+};
+std::string to_string(WidthMode m);
+WidthMode width_mode_from_string(const std::string& s);  // "fixed" | "per_particle"
+
+// Time discretisation of the implicit step (docs/stepper.md).
+enum class TimeScheme {
+  Euler,  // implicit Euler: minimise (28) from x^k (the papers' scheme, first order)
+  Bdf2    // variational BDF2: the same functional about x_hat = x^k + c (x^k - x^{k-1}), second order
+};
+std::string to_string(TimeScheme s);
+TimeScheme time_scheme_from_string(const std::string& s);  // "euler" | "bdf2"
+
+// Starting point of each solve.
+enum class Predictor {
+  None,        // x^k (the warm start of the papers)
+  Extrapolate,  // x^k + (dt_k / dt_{k-1}) (x^k - x^{k-1}), kept inside the walls
+  Damped        // the same times each particle's observed ratio of successive displacements, in [0, 1]
+};
+std::string to_string(Predictor p);
+Predictor predictor_from_string(const std::string& s);  // "none" | "extrapolate" | "damped"
+
+struct ImplicitOptions {
+  MinimizerOptions minimizer;                        // backend, algorithm, caps (gradient_tolerance is set per step)
+  double displacement_tolerance = 1e-3;              // stop when max |dt/m dF/dx| <= this x smallest width s
+  double relative_tolerance = 1e-2;                  // ... or <= this x the step's first gradient step, if smaller
+  WidthMode width_mode = WidthMode::Fixed;           // optimise widths or not
+  WidthMetric width_metric = WidthMetric::AsPrinted; // c_w = 1 or d/2
+  double kappa = 1.0;                                // diffusivity
+  double rho_ref = 1.0;                              // reference density in the entropy
+  NeighborOptions neighbor{1e-8, -1.0, 1.0};         // cut-off tolerance; skin = 1 x smallest s
+  int max_halvings = 4;                              // retries with dt/2 substeps after a failed solve
+  double energy_tolerance = 1e-9;                    // allowed F_after - F_before, relative to |F_before| + |E|
+  bool sort_particles = true;                        // reorder particles spatially at each accepted step (ids kept)
+  TimeScheme time_scheme = TimeScheme::Euler;        // implicit Euler or variational BDF2
+  Predictor predictor = Predictor::None;             // start of each solve
+  double error_smoothing = 2.0;                      // error estimate: smoothing length in widths s (0: per particle)
+  void validate() const;
+};
+
+class ImplicitStepper {
+ public:
+  ImplicitStepper(int dim, ImplicitOptions options, Barrier barrier = {}, Periodicity periodicity = {});
+  // One implicit step of length dt from the state in `particles`. On failure
+  // (after max_halvings retries) the particles are left exactly as they were.
+  // On success they may also be reordered (sort_particles); ids are kept.
+  // max_error: a step whose error_estimate exceeds it is not taken
+  // (accepted == false, error_rejected == true; the history is kept), so an
+  // adaptive caller (TimeStepController) can retry with a smaller dt.
+  StepSummary step(ParticleSet& particles, double dt,
+                   double max_error = std::numeric_limits<double>::infinity());
+  // The stepper remembers each particle's last two diffusive displacements
+  // (by id) for the predictor, BDF2 and the error estimate. Call this when the
+  // particles were changed in a way that is not a time step (a new set, a restart).
+  void reset_history();
+  std::size_t history_size() const { return history_.size(); }
+  // The history as data (for checkpoints), entries sorted by id; importing
+  // it into a stepper built with the same options continues bit for bit.
+  struct HistoryEntry {
+    ParticleId id = 0;
+    Vec3 d1 = Vec3::Zero(), d2 = Vec3::Zero();
+    double ds1 = 0.0, ds2 = 0.0;
+    int count = 0;
+  };
+  struct HistoryState {
+    std::vector<HistoryEntry> entries;
+    double dt1 = 0.0, dt2 = 0.0;
+  };
+  HistoryState history_state() const;
+  void restore_history(const HistoryState& state);  // throws InvalidArgument for a bad entry
+  // Where the predictor (options().predictor, or Extrapolate if None) would
+  // start a step of length dt, in the order of `particles`: e.g.
+  // x + (dt / dt_{k-1}) (x^k - x^{k-1}), pulled back towards x where that would
+  // leave the barrier domain or cross a mirrored wall; x itself for particles
+  // with no history.
+  std::vector<Vec3> predict(const ParticleSet& particles, double dt) const;
+  double previous_dt() const { return dt1_; }
+  void set_external_potential(ExternalPotential u) { external_ = std::move(u); }
+  const ImplicitOptions& options() const { return options_; }
+  Functional& functional() { return functional_; }
+  Barrier& barrier() { return functional_.barrier().barrier(); }
+
+ private:
+  // Per-particle history, aligned with the particles during a step.
+  struct History {
+    Vec3 d1 = Vec3::Zero(), d2 = Vec3::Zero();  // x^k - x^{k-1}, x^{k-1} - x^{k-2} (diffusive part)
+    double ds1 = 0.0, ds2 = 0.0;                // the same for widths
+    int count = 0;                              // how many of d1, d2 are known
+  };
+  bool solve(std::vector<Vec3>& x, std::vector<double>& s, const std::vector<double>& m, std::vector<History>& hist,
+             double& dt1, double& dt2, double dt, StepSummary& summary);
+  Vec3 admissible_start(const Vec3& from, const Vec3& to) const;
+  // Factor g of the predicted displacement g d1 for a step w = dt / dt_{k-1} times the last.
+  static double predictor_factor(Predictor predictor, const History& h, double omega);
+  int dim_;
+  ImplicitOptions options_;
+  Functional functional_;
+  ExternalPotential external_;
+  std::unordered_map<ParticleId, History> history_;
+  double dt1_ = 0.0, dt2_ = 0.0;  // the last two step sizes (0: none)
+};
+
+}  // namespace otfp
