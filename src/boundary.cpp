@@ -70,62 +70,6 @@ std::size_t draw_without_replacement(std::vector<std::size_t>& pool, std::size_t
 
 }  // namespace
 
-std::string to_string(PatchKind k) {
-  switch (k) {
-    case PatchKind::NoFlux: return "no_flux";
-    case PatchKind::Dirichlet: return "dirichlet";
-    case PatchKind::Neumann: return "neumann";
-  }
-  return "unknown";
-}
-
-PatchKind patch_kind_from_string(const std::string& s) {
-  if (s == "no_flux") return PatchKind::NoFlux;
-  if (s == "dirichlet") return PatchKind::Dirichlet;
-  if (s == "neumann") return PatchKind::Neumann;
-  require(false, "boundary.kind", s, "must be one of no_flux, dirichlet, neumann");
-  return PatchKind::NoFlux;
-}
-
-std::string to_string(NeumannOutflow m) {
-  switch (m) {
-    case NeumannOutflow::Layer: return "layer";
-    case NeumannOutflow::NearestParticles: return "nearest_particles";
-  }
-  return "unknown";
-}
-
-NeumannOutflow neumann_outflow_from_string(const std::string& s) {
-  if (s == "layer") return NeumannOutflow::Layer;
-  if (s == "nearest_particles") return NeumannOutflow::NearestParticles;
-  require(false, "boundary.neumann_outflow", s, "must be one of layer, nearest_particles");
-  return NeumannOutflow::Layer;
-}
-
-std::string to_string(DirichletMode m) {
-  switch (m) {
-    case DirichletMode::Layer: return "layer";
-    case DirichletMode::Reservoir: return "reservoir";
-  }
-  return "unknown";
-}
-
-DirichletMode dirichlet_mode_from_string(const std::string& s) {
-  if (s == "layer") return DirichletMode::Layer;
-  if (s == "reservoir") return DirichletMode::Reservoir;
-  require(false, "boundary.dirichlet_mode", s, "must be one of layer, reservoir");
-  return DirichletMode::Layer;
-}
-
-std::string to_string(ReservoirProfile m) { return m == ReservoirProfile::Uniform ? "uniform" : "odd"; }
-
-ReservoirProfile reservoir_profile_from_string(const std::string& s) {
-  if (s == "uniform") return ReservoirProfile::Uniform;
-  if (s == "odd") return ReservoirProfile::Odd;
-  require(false, "boundary.reservoir_profile", s, "must be one of uniform, odd");
-  return ReservoirProfile::Uniform;
-}
-
 void ProjectionOptions::validate() const {
   require(std::isfinite(layer_b) && layer_b > 0.0, "boundary.layer_b", layer_b, "must be finite and > 0");
   require(quadrature_samples >= 1000, "boundary.quadrature_samples", quadrature_samples, "must be >= 1000");

@@ -7,22 +7,6 @@
 
 namespace otfp {
 
-std::string to_string(ExplicitScheme s) {
-  switch (s) {
-    case ExplicitScheme::EulerForce27: return "euler27";
-    case ExplicitScheme::Rk4Force27: return "rk4";
-    case ExplicitScheme::EulerExactGradient: return "euler_exact";
-  }
-  return "?";
-}
-
-ExplicitScheme explicit_scheme_from_string(const std::string& s) {
-  if (s == "euler27") return ExplicitScheme::EulerForce27;
-  if (s == "rk4") return ExplicitScheme::Rk4Force27;
-  if (s == "euler_exact") return ExplicitScheme::EulerExactGradient;
-  throw InvalidArgument("explicit scheme = '" + s + "': must be one of euler27, rk4, euler_exact");
-}
-
 void ExplicitOptions::validate() const {
   require(std::isfinite(kappa) && kappa > 0.0, "kappa", kappa, "must be finite and > 0");
   require(std::isfinite(rho_ref) && rho_ref > 0.0, "rho_ref", rho_ref, "must be finite and > 0");

@@ -7,33 +7,6 @@
 
 namespace otfp {
 
-std::string to_string(TimeScheme s) { return s == TimeScheme::Euler ? "euler" : "bdf2"; }
-
-TimeScheme time_scheme_from_string(const std::string& s) {
-  if (s == "euler") return TimeScheme::Euler;
-  if (s == "bdf2") return TimeScheme::Bdf2;
-  throw InvalidArgument("time_scheme = '" + s + "': must be one of euler, bdf2");
-}
-
-std::string to_string(Predictor p) {
-  return p == Predictor::None ? "none" : p == Predictor::Extrapolate ? "extrapolate" : "damped";
-}
-
-Predictor predictor_from_string(const std::string& s) {
-  if (s == "none") return Predictor::None;
-  if (s == "extrapolate") return Predictor::Extrapolate;
-  if (s == "damped") return Predictor::Damped;
-  throw InvalidArgument("predictor = '" + s + "': must be one of none, extrapolate, damped");
-}
-
-std::string to_string(WidthMode m) { return m == WidthMode::Fixed ? "fixed" : "per_particle"; }
-
-WidthMode width_mode_from_string(const std::string& s) {
-  if (s == "fixed") return WidthMode::Fixed;
-  if (s == "per_particle") return WidthMode::PerParticle;
-  throw InvalidArgument("width_mode = '" + s + "': must be one of fixed, per_particle");
-}
-
 void ImplicitOptions::validate() const {
   minimizer.validate();
   require(std::isfinite(displacement_tolerance) && displacement_tolerance > 0.0, "displacement_tolerance",

@@ -169,15 +169,6 @@ double line_fraction(const Domain& dom, const Vec3& p, const Vec3& n, double s, 
 
 }  // namespace
 
-std::string to_string(BlobMassMethod method) {
-  switch (method) {
-    case BlobMassMethod::ClosedForm: return "closed_form";
-    case BlobMassMethod::Total: return "total";
-    case BlobMassMethod::Quadrature: return "quadrature";
-  }
-  return "unknown";
-}
-
 void BlobMassOptions::validate() const {
   require(std::isfinite(cutoff_tolerance) && cutoff_tolerance > 0.0 && cutoff_tolerance < 1.0,
           "BlobMassOptions::cutoff_tolerance", cutoff_tolerance, "must be in (0, 1)");

@@ -55,54 +55,6 @@ double Objective::stopping_measure(const double* /*z*/, const double* gradient) 
 
 // ---------------------------------------------------------------- strings
 
-std::string to_string(Backend b) {
-  switch (b) {
-    case Backend::Ceres: return "ceres";
-    case Backend::Nlopt: return "nlopt";
-  }
-  return "unknown";
-}
-
-std::string to_string(Algorithm a) {
-  switch (a) {
-    case Algorithm::Lbfgs: return "lbfgs";
-    case Algorithm::Bfgs: return "bfgs";
-    case Algorithm::NonlinearCg: return "nonlinear_cg";
-    case Algorithm::TruncatedNewton: return "tnewton";
-    case Algorithm::Var2: return "var2";
-    case Algorithm::Mma: return "mma";
-  }
-  return "unknown";
-}
-
-std::string to_string(TerminationReason r) {
-  switch (r) {
-    case TerminationReason::Converged: return "converged";
-    case TerminationReason::FunctionTolerance: return "function_tolerance";
-    case TerminationReason::MaxIterations: return "max_iterations";
-    case TerminationReason::MaxEvaluations: return "max_evaluations";
-    case TerminationReason::LineSearchFailure: return "line_search_failure";
-    case TerminationReason::NonFinite: return "non_finite";
-    case TerminationReason::Failure: return "failure";
-  }
-  return "unknown";
-}
-
-Backend backend_from_string(const std::string& s) {
-  for (Backend b : {Backend::Ceres, Backend::Nlopt})
-    if (s == to_string(b)) return b;
-  require(false, "solver.backend", s, "must be one of: ceres, nlopt");
-  return Backend::Ceres;
-}
-
-Algorithm algorithm_from_string(const std::string& s) {
-  for (Algorithm a : {Algorithm::Lbfgs, Algorithm::Bfgs, Algorithm::NonlinearCg, Algorithm::TruncatedNewton,
-                      Algorithm::Var2, Algorithm::Mma})
-    if (s == to_string(a)) return a;
-  require(false, "solver.algorithm", s, "must be one of: lbfgs, bfgs, nonlinear_cg, tnewton, var2, mma");
-  return Algorithm::Lbfgs;
-}
-
 // ---------------------------------------------------------------- options
 
 void MinimizerOptions::validate() const {

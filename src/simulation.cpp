@@ -62,22 +62,6 @@ std::string format(std::string_view pattern, const Args&... args) {
 
 }  // namespace
 
-std::string to_string(StepperKind k) { return k == StepperKind::Implicit ? "implicit" : "explicit"; }
-
-StepperKind stepper_kind_from_string(const std::string& s) {
-  if (s == "implicit") return StepperKind::Implicit;
-  if (s == "explicit") return StepperKind::Explicit;
-  throw InvalidArgument("stepper = \"" + s + "\": must be \"implicit\" or \"explicit\"");
-}
-
-std::string to_string(NoFluxTreatment t) { return t == NoFluxTreatment::Barrier ? "barrier" : "images"; }
-
-NoFluxTreatment no_flux_treatment_from_string(const std::string& s) {
-  if (s == "barrier") return NoFluxTreatment::Barrier;
-  if (s == "images") return NoFluxTreatment::Images;
-  throw InvalidArgument("no_flux = \"" + s + "\": must be \"barrier\" or \"images\"");
-}
-
 void SimulationOptions::validate() const {
   require(std::isfinite(particle_mass) && particle_mass > 0.0, "particle_mass", particle_mass, "must be finite and > 0");
   require(std::isfinite(width_s) && width_s > 0.0, "width_s", width_s, "must be finite and > 0");

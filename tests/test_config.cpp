@@ -705,6 +705,9 @@ TEST(Config, ChoicesConvertWithTheLibrary) {
   each("boundary[].kind", patch_kind_from_string);
   each("treatment.dirichlet", dirichlet_mode_from_string);
   each("treatment.reservoir_profile", reservoir_profile_from_string);
+  each("particles.spacing_rule", spacing_rule_from_string);
+  each("particles.dirichlet_target", dirichlet_target_from_string);
+  each("solver.width_metric", width_metric_from_string);
   EXPECT_EQ(info("solver.algorithm").choices.size(), 6u);
   EXPECT_THROW(backend_from_string("petsc"), std::exception);
 }

@@ -23,48 +23,12 @@
 #include "otfp/geometry.hpp"
 #include "otfp/images.hpp"
 #include "otfp/particles.hpp"
+#include "otfp/enums.hpp"
 
 namespace otfp {
 
-enum class PatchKind { NoFlux, Dirichlet, Neumann };
-std::string to_string(PatchKind k);
-PatchKind patch_kind_from_string(const std::string& s);  // "no_flux" | "dirichlet" | "neumann"
-
-// What a Neumann outlet does when its cell B_l holds fewer particles than the
-// owed outflow (ProjectionOptions::neumann_outflow).
-enum class NeumannOutflow {
-  Layer,            // papers: remove only from B_l; the rest is carried as debt (deficit)
-  NearestParticles  // remove from B_l first, then the particles nearest A_l; debt only with no particles left
-};
-std::string to_string(NeumannOutflow m);
-NeumannOutflow neumann_outflow_from_string(const std::string& s);  // "layer" | "nearest_particles"
-
-// How a Dirichlet patch imposes g (ProjectionOptions::dirichlet_mode).
-enum class DirichletMode {
-  Layer,     // papers: fill / empty B_l^int to its target mass each step (Sec. 4.2)
-  Reservoir  // persistent exterior band of thickness w, each of K sublayers held at its count
-};
-std::string to_string(DirichletMode m);
-DirichletMode dirichlet_mode_from_string(const std::string& s);  // "layer" | "reservoir"
-
-// The count each reservoir sublayer is held at (ProjectionOptions::reservoir_profile).
-enum class ReservoirProfile {
-  Uniform,  // density g in every sublayer
-  Odd       // density 2 g - rho_in, rho_in the particle density of the sublayer's mirror image
-            // inside Omega (clamped to [0, 2 g]): u - g odd across the face, so the blob
-            // density at the face is g while the interior next to it is not yet at g
-};
-std::string to_string(ReservoirProfile m);
-ReservoirProfile reservoir_profile_from_string(const std::string& s);  // "uniform" | "odd"
-
 // Scalar boundary data g(x, t) (density) or f(x, t) (outward mass flux per unit area and time).
 using BoundaryData = std::function<double(const Vec3& x, double t)>;
-
-// How the Dirichlet target mass of B_l^int is computed (docs/method_notes.md#dirichlet-target).
-enum class DirichletTarget {
-  CellIntegral,  // integral of g over the cell B_l^int itself (default)
-  PaperEq34      // (34): b times the integral of g over A_l (over-fills curved layers)
-};
 
 struct PatchCondition {
   int patch = 0;                       // patch id in the domain

@@ -10,16 +10,9 @@
 #include "otfp/external_potential.hpp"
 #include "otfp/functional.hpp"
 #include "otfp/step_summary.hpp"
+#include "otfp/enums.hpp"
 
 namespace otfp {
-
-enum class ExplicitScheme {
-  EulerForce27,       // Algorithm 1 line 4: x <- x - dt (kappa grad rho/rho + grad Psi)
-  Rk4Force27,         // classical RK4 with the same velocity ([2023] Sec. 5.1)
-  EulerExactGradient  // x <- x - dt/m dF/dx with the exact gradient of (28)
-};
-std::string to_string(ExplicitScheme s);
-ExplicitScheme explicit_scheme_from_string(const std::string& s);  // "euler27" | "rk4" | "euler_exact"
 
 struct ExplicitOptions {
   ExplicitScheme scheme = ExplicitScheme::EulerForce27;  // which explicit update

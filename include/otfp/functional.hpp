@@ -16,14 +16,10 @@
 #include "otfp/images.hpp"
 #include "otfp/neighbor_list.hpp"
 #include "otfp/particles.hpp"
+#include "otfp/enums.hpp"
 
 namespace otfp {
 
-// Width metric coefficient c_w of the transport term (docs/method_notes.md#width-metric).
-enum class WidthMetric {
-  AsPrinted,      // c_w = 1, as printed in (28) and [2023] (15)
-  ExactGaussian   // c_w = d/2, the exact 2-Wasserstein distance between isotropic Gaussians
-};
 double width_metric_coefficient(WidthMetric metric, int dim);
 
 // Gradient storage: position gradient per particle and, optionally, width gradient.

@@ -14,32 +14,9 @@
 #include "otfp/functional.hpp"
 #include "otfp/minimizer.hpp"
 #include "otfp/step_summary.hpp"
+#include "otfp/enums.hpp"
 
 namespace otfp {
-
-enum class WidthMode {
-  Fixed,       // widths stay as given (the papers' choice)
-  PerParticle  // one optimised width per particle, minimising (28) in s as well
-};
-std::string to_string(WidthMode m);
-WidthMode width_mode_from_string(const std::string& s);  // "fixed" | "per_particle"
-
-// Time discretisation of the implicit step (docs/stepper.md).
-enum class TimeScheme {
-  Euler,  // implicit Euler: minimise (28) from x^k (the papers' scheme, first order)
-  Bdf2    // variational BDF2: the same functional about x_hat = x^k + c (x^k - x^{k-1}), second order
-};
-std::string to_string(TimeScheme s);
-TimeScheme time_scheme_from_string(const std::string& s);  // "euler" | "bdf2"
-
-// Starting point of each solve.
-enum class Predictor {
-  None,        // x^k (the warm start of the papers)
-  Extrapolate,  // x^k + (dt_k / dt_{k-1}) (x^k - x^{k-1}), kept inside the walls
-  Damped        // the same times each particle's observed ratio of successive displacements, in [0, 1]
-};
-std::string to_string(Predictor p);
-Predictor predictor_from_string(const std::string& s);  // "none" | "extrapolate" | "damped"
 
 struct ImplicitOptions {
   MinimizerOptions minimizer;                        // backend, algorithm, caps (gradient_tolerance is set per step)

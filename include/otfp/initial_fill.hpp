@@ -7,10 +7,9 @@
 
 #include "otfp/geometry.hpp"
 #include "otfp/particles.hpp"
+#include "otfp/enums.hpp"
 
 namespace otfp {
-
-enum class FillShape { Uniform, Gaussian, Cosine };
 
 struct FillOptions {
   FillShape shape = FillShape::Uniform;      // what density the particles sample

@@ -25,11 +25,9 @@
 #include "otfp/geometry.hpp"
 #include "otfp/particles.hpp"
 #include "otfp/types.hpp"
+#include "otfp/enums.hpp"
 
 namespace otfp {
-
-enum class BlobMassMethod { ClosedForm, Total, Quadrature };
-std::string to_string(BlobMassMethod method);
 
 struct BlobMassOptions {
   // Quadrature path: blobs whose centre is farther than the cut-off

@@ -5,6 +5,7 @@
 #include <cstddef>
 #include <string>
 #include <vector>
+#include "otfp/enums.hpp"
 
 namespace otfp {
 
@@ -22,22 +23,6 @@ class Objective {
   virtual double stopping_measure(const double* z, const double* gradient) const;
 };
 
-enum class Backend { Ceres, Nlopt };
-
-enum class Algorithm {
-  Lbfgs,            // Ceres LBFGS / NLopt LD_LBFGS (default for both)
-  Bfgs,             // Ceres BFGS (Ceres only)
-  NonlinearCg,      // Ceres NONLINEAR_CONJUGATE_GRADIENT (Ceres only)
-  TruncatedNewton,  // NLopt LD_TNEWTON_PRECOND_RESTART (NLopt only)
-  Var2,             // NLopt LD_VAR2 (NLopt only)
-  Mma               // NLopt LD_MMA (NLopt only)
-};
-
-std::string to_string(Backend b);
-std::string to_string(Algorithm a);
-Backend backend_from_string(const std::string& s);      // throws InvalidArgument
-Algorithm algorithm_from_string(const std::string& s);  // throws InvalidArgument
-
 struct MinimizerOptions {
   Backend backend = Backend::Ceres;                // which library runs the minimisation
   Algorithm algorithm = Algorithm::Lbfgs;          // must be offered by the backend
@@ -52,17 +37,6 @@ struct MinimizerOptions {
   // Throws InvalidArgument naming the offending field.
   void validate() const;
 };
-
-enum class TerminationReason {
-  Converged,          // stopping measure reached gradient_tolerance
-  FunctionTolerance,  // relative change of f below function_tolerance
-  MaxIterations,      // iteration cap without convergence
-  MaxEvaluations,     // evaluation cap without convergence
-  LineSearchFailure,  // backend could not make progress (roundoff, failed line search)
-  NonFinite,          // the objective reported a non-finite value at the start or throughout
-  Failure             // any other backend failure
-};
-std::string to_string(TerminationReason r);
 
 struct MinimizerSummary {
   TerminationReason reason = TerminationReason::Failure;

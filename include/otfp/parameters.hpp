@@ -2,13 +2,9 @@
 // The papers' parameter rules, eqs. (36)-(40) of the 2025 paper.
 #include <cstddef>
 
-namespace otfp {
+#include "otfp/enums.hpp"
 
-// How the mean spacing dr follows from |Omega| and n.
-enum class SpacingRule {
-  Cube,         // (37): dr = (|Omega|/n)^(1/d)
-  SphereRadius  // Tables 1-3: radius of a ball of volume |Omega|/n, dr = (3|Omega|/(4 pi n))^(1/3) (d = 3)
-};
+namespace otfp {
 
 // How the blob width follows the spacing. The papers keep beta dr^2 fixed
 // (q = 1). With q != 1 the width is

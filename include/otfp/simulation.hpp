@@ -28,18 +28,9 @@
 #include "otfp/particles.hpp"
 #include "otfp/stepper.hpp"
 #include "otfp/time_step_control.hpp"
+#include "otfp/enums.hpp"
 
 namespace otfp {
-
-enum class StepperKind { Implicit, Explicit };
-std::string to_string(StepperKind k);
-StepperKind stepper_kind_from_string(const std::string& s);  // "implicit" | "explicit"
-
-// How no-flux walls hold the particles in: the barrier (27) alone, or image
-// blobs across each wall as well (docs/boundaries.md).
-enum class NoFluxTreatment { Barrier, Images };
-std::string to_string(NoFluxTreatment t);
-NoFluxTreatment no_flux_treatment_from_string(const std::string& s);  // "barrier" | "images"
 
 // Constant data on one patch, switched on over [t_start, t_end): Dirichlet g
 // or Neumann outward flux f (a step receives the exact integral over the

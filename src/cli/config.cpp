@@ -326,7 +326,7 @@ const std::vector<Field>& fields() {
         key("domain.subpatch[].radius", &SubPatchSpec::radius).needed("required, > 0").with(greater(0)),
         key("particles.n_inf", &ParticlesSection::n_inf).with(at_least(1)),
         key("particles.mass", &ParticlesSection::mass).with(greater(0)),
-        key("particles.spacing_rule", &ParticlesSection::spacing_rule).one_of({"cube", "sphere_radius"}),
+        key("particles.spacing_rule", &ParticlesSection::spacing_rule).one_of(names({SpacingRule::Cube, SpacingRule::SphereRadius})),
         key("particles.beta_factor", &ParticlesSection::beta_factor).with(greater(0)),
         key("particles.width_exponent", &ParticlesSection::width_exponent)
             .with(interval('(', 0, 2, ']',
@@ -334,7 +334,7 @@ const std::vector<Field>& fields() {
         key("particles.width_reference_n", &ParticlesSection::width_reference_n).with(at_least(1)),
         key("particles.layer_b", &ParticlesSection::layer_b).with(at_least(0)),
         key("particles.length_L", &ParticlesSection::length_L).with(at_least(0)),
-        key("particles.dirichlet_target", &ParticlesSection::dirichlet_target).one_of({"cell_integral", "paper_eq34"}),
+        key("particles.dirichlet_target", &ParticlesSection::dirichlet_target).one_of(names({DirichletTarget::CellIntegral, DirichletTarget::PaperEq34})),
         key("particles.fill", &ParticlesSection::fill).one_of({"empty", "uniform", "gaussian", "cosine", "file"}),
         key("particles.fill_file", &ParticlesSection::fill_file),
         key("particles.fill_arrangement", &ParticlesSection::fill_arrangement)
@@ -367,7 +367,7 @@ const std::vector<Field>& fields() {
         key("solver.explicit_scheme", &SolverSection::explicit_scheme)
             .one_of(names({ExplicitScheme::EulerForce27, ExplicitScheme::Rk4Force27, ExplicitScheme::EulerExactGradient})),
         key("solver.width_mode", &SolverSection::width_mode).one_of(names({WidthMode::Fixed, WidthMode::PerParticle})),
-        key("solver.width_metric", &SolverSection::width_metric).one_of({"as_printed", "exact"}),
+        key("solver.width_metric", &SolverSection::width_metric).one_of(names({WidthMetric::AsPrinted, WidthMetric::ExactGaussian})),
         key("solver.time_scheme", &SolverSection::time_scheme).one_of(names({TimeScheme::Euler, TimeScheme::Bdf2})),
         key("solver.predictor", &SolverSection::predictor)
             .one_of(names({Predictor::None, Predictor::Extrapolate, Predictor::Damped})),

@@ -285,7 +285,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   Derived& d = derived_;
   d.volume = domain_->volume();
   d.length_L = c.particles.length_L > 0.0 ? c.particles.length_L : st.built.length_L;
-  const SpacingRule rule = c.particles.spacing_rule == "sphere_radius" ? SpacingRule::SphereRadius : SpacingRule::Cube;
+  const SpacingRule rule = spacing_rule_from_string(c.particles.spacing_rule);
   PaperParameters pp;
   try {
     const WidthScaling ws{c.particles.width_exponent, static_cast<std::size_t>(c.particles.width_reference_n)};
@@ -465,7 +465,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   po.layer_b = d.layer_b;
   po.neumann_outflow = tr.neumann_outflow == "nearest" ? NeumannOutflow::NearestParticles : NeumannOutflow::Layer;
   po.absorb_exterior = tr.dirichlet == "layer" && tr.stranded == "absorb";
-  po.dirichlet_target = pa.dirichlet_target == "paper_eq34" ? DirichletTarget::PaperEq34 : DirichletTarget::CellIntegral;
+  po.dirichlet_target = dirichlet_target_from_string(pa.dirichlet_target);
   if (tr.dirichlet == "reservoir" && any_dirichlet) {
     // Band of width w = reservoir_width * r_c, round(2 w / dr) sublayers unless given.
     d.reservoir_width = tr.reservoir_width * cutoff_radius(d.width_s, c.solver.kernel_tolerance);
@@ -494,7 +494,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     io.displacement_tolerance = s.displacement_tolerance;
     io.relative_tolerance = s.relative_tolerance;
     io.width_mode = width_mode_from_string(s.width_mode);
-    io.width_metric = s.width_metric == "exact" ? WidthMetric::ExactGaussian : WidthMetric::AsPrinted;
+    io.width_metric = width_metric_from_string(s.width_metric);
     io.time_scheme = time_scheme_from_string(s.time_scheme);
     io.predictor = predictor_from_string(s.predictor);
     io.error_smoothing = s.error_smoothing;
@@ -1125,9 +1125,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
         fill = *st.file_particles;
       } else if (d.fill_count > 0) {  // a lattice is filled whatever particles.fill says
         FillOptions fo;
-        fo.shape = c.particles.fill == "gaussian" ? FillShape::Gaussian
-                   : c.particles.fill == "cosine" ? FillShape::Cosine
-                                                  : FillShape::Uniform;
+        fo.shape = c.particles.fill == "empty" ? FillShape::Uniform : fill_shape_from_string(c.particles.fill);
         fo.count = d.fill_count;
         fo.width_s = d.width_s;
         fo.mass = d.particle_mass;
