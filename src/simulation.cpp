@@ -62,7 +62,14 @@ std::string format(std::string_view pattern, const Args&... args) {
 
 }  // namespace
 
-void SimulationOptions::validate() const {
+namespace {
+// The fields Simulation itself uses; the projection and stepper options are
+// checked by their own validate().
+void validate_own_fields(const SimulationOptions& o) {
+  const double particle_mass = o.particle_mass, width_s = o.width_s, barrier_stiffness = o.barrier_stiffness;
+  const double source_rate = o.source_rate;
+  const Vec3& velocity = o.velocity;
+  const int max_error_rejections = o.max_error_rejections;
   require(std::isfinite(particle_mass) && particle_mass > 0.0, "particle_mass", particle_mass, "must be finite and > 0");
   require(std::isfinite(width_s) && width_s > 0.0, "width_s", width_s, "must be finite and > 0");
   require(std::isfinite(barrier_stiffness) && barrier_stiffness >= 0.0, "barrier_stiffness", barrier_stiffness,
@@ -70,12 +77,17 @@ void SimulationOptions::validate() const {
   require(velocity.allFinite(), "velocity", velocity.norm(), "must be finite");
   require(std::isfinite(source_rate), "source_rate", source_rate, "must be finite");
   require(max_error_rejections >= 1, "max_error_rejections", max_error_rejections, "must be >= 1");
+  o.time_control.validate();
+}
+}  // namespace
+
+void SimulationOptions::validate() const {
+  validate_own_fields(*this);
   projection.validate();
   if (stepper == StepperKind::Implicit)
     implicit.validate();
   else
     explicit_options.validate();
-  time_control.validate();
 }
 
 // ------------------------------------------------------------------ building
@@ -90,13 +102,7 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
   if (!domain_) throw InvalidArgument("domain: must not be null");
   // The projection and stepper options are checked where they are used, so
   // that their errors carry their stage.
-  {
-    SimulationOptions basic = options_;
-    basic.projection = ProjectionOptions{};
-    basic.implicit = ImplicitOptions{};
-    basic.explicit_options = ExplicitOptions{};
-    basic.validate();
-  }
+  validate_own_fields(options_);
   const int dim = domain_->dim();
   const SimulationOptions& o = options_;
 
