@@ -1,6 +1,7 @@
 #include "otfp/analytic.hpp"
 
 #include <cmath>
+#include <limits>
 
 #include "otfp/types.hpp"
 
@@ -63,6 +64,60 @@ double crank_slab_density(double tau, double depth) {
 
 double cosine_mode_decay(double kappa, double wavenumber, double t) {
   return std::exp(-kappa * wavenumber * wavenumber * t);
+}
+
+double crank_slab_polar_inertia(double tau, const SlabBox& slab, int intervals) {
+  require(std::isfinite(tau) && tau >= 0.0, "kappa t / L^2", tau, "must be finite and >= 0");
+  require(slab.dim >= 1 && slab.dim <= 3, "slab.dim", slab.dim, "must be 1, 2 or 3");
+  require(slab.axis >= 0 && slab.axis < slab.dim, "slab.axis", slab.axis, "must be an axis below dim");
+  require(std::isfinite(slab.length) && slab.length > 0.0, "slab.length", slab.length, "must be finite and > 0");
+  require(intervals >= 2 && intervals % 2 == 0, "intervals", intervals, "must be even and >= 2");
+  if (tau == 0.0) return 0.0;
+  const int a = slab.axis;
+  double transverse = 0.0;
+  for (int k = 0; k < slab.dim; ++k)
+    if (k != a) {
+      const double w = slab.hi[k] - slab.lo[k], mid = 0.5 * (slab.hi[k] + slab.lo[k]);
+      transverse += w * w / 12.0 + (mid - slab.center[k]) * (mid - slab.center[k]);
+    }
+  const double L = slab.length;
+  double integral = 0.0;
+  for (int i = 0; i <= intervals; ++i) {
+    const double depth = static_cast<double>(i) / intervals;
+    const double x = slab.held_at_hi ? slab.hi[a] - depth * L : slab.lo[a] + depth * L;
+    const double w = (i == 0 || i == intervals) ? 1.0 : (i % 2 ? 4.0 : 2.0);
+    integral += w * crank_slab_density(tau, depth) * ((x - slab.center[a]) * (x - slab.center[a]) + transverse);
+  }
+  return slab.M_inf * integral / (3.0 * intervals);  // M_inf = g |Omega|, depth in units of L
+}
+
+namespace {
+double rate_of_factor(double g, double dt) {
+  return g > 0.0 ? -std::log(g) / dt : std::numeric_limits<double>::infinity();
+}
+void require_rate_inputs(double lambda, double dt) {
+  require(std::isfinite(lambda) && lambda >= 0.0, "lambda", lambda, "must be finite and >= 0");
+  require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
+}
+}  // namespace
+
+double time_discrete_rate(TimeScheme scheme, double lambda, double dt) {
+  require_rate_inputs(lambda, dt);
+  const double z = lambda * dt;
+  if (scheme == TimeScheme::Euler) return rate_of_factor(1.0 / (1.0 + z), dt);
+  // BDF2: the roots of (3/2 + z) g^2 - 2 g + 1/2 = 0 are (2 +- sqrt(1 - 2 z)) / (3 + 2 z);
+  // the principal one (-> 1 as z -> 0) while real, else the complex pair's
+  // modulus sqrt(1 / (3 + 2 z)) (the product of the roots).
+  const double g = z <= 0.5 ? (2.0 + std::sqrt(1.0 - 2.0 * z)) / (3.0 + 2.0 * z) : 1.0 / std::sqrt(3.0 + 2.0 * z);
+  return rate_of_factor(g, dt);
+}
+
+double time_discrete_rate(ExplicitScheme scheme, double lambda, double dt) {
+  require_rate_inputs(lambda, dt);
+  const double z = lambda * dt;
+  const double g = scheme == ExplicitScheme::Rk4Force27 ? 1.0 - z + z * z / 2.0 - z * z * z / 6.0 + z * z * z * z / 24.0
+                                                         : 1.0 - z;
+  return rate_of_factor(g, dt);
 }
 
 }  // namespace otfp::analytic

@@ -1,6 +1,7 @@
 #include "otfp/diagnostics.hpp"
 
 #include <algorithm>
+#include <cmath>
 
 namespace otfp {
 
@@ -61,6 +62,27 @@ void L1Norms::add(const StateMeasures& previous, const StateMeasures& now, doubl
   mass_with_layer_trapezoid += 0.5 * (previous.mass_with_layer + now.mass_with_layer) * dt;
   polar_inertia_inside_trapezoid += 0.5 * (previous.polar_inertia + now.polar_inertia) * dt;
   polar_inertia_with_layer_trapezoid += 0.5 * (previous.polar_inertia_with_layer + now.polar_inertia_with_layer) * dt;
+}
+
+double blob_second_moment(const ParticleSet& particles, const Vec3& center) {
+  const double dim = static_cast<double>(particles.dim());
+  double S = 0.0;
+  for (std::size_t p = 0; p < particles.size(); ++p) {
+    const double sp = particles.widths()[p];
+    S += particles.masses()[p] * ((particles.positions()[p] - center).squaredNorm() + 0.5 * dim * sp * sp);
+  }
+  return S;
+}
+
+double cosine_mode_amplitude(const ParticleSet& particles, double wavenumber, double x0) {
+  const double k = wavenumber;
+  double A = 0.0, mass = 0.0;
+  for (std::size_t p = 0; p < particles.size(); ++p) {
+    const double sp = particles.widths()[p];
+    A += particles.masses()[p] * std::exp(-0.25 * k * k * sp * sp) * std::cos(k * (particles.positions()[p][0] - x0));
+    mass += particles.masses()[p];
+  }
+  return mass > 0.0 ? A * (2.0 / mass) : 0.0;
 }
 
 }  // namespace otfp

@@ -3,6 +3,8 @@
 #include <cmath>
 
 #include "otfp/analytic.hpp"
+#include "otfp/diagnostics.hpp"
+#include "otfp/types.hpp"
 
 using namespace otfp::analytic;
 
@@ -81,4 +83,82 @@ TEST(Analytic, CrankSlabDensityIntegratesToTheUptake) {
   }
   EXPECT_NEAR(crank_slab_density(100.0, 1.0), 1.0, 1e-15);
   EXPECT_NEAR(crank_slab_density(1e-3, 1.0), 0.0, 1e-12);  // the far face is still empty
+}
+
+TEST(Analytic, SlabPolarInertiaTendsToTheUniformBox) {
+  // Late times: rho = g everywhere, so J = M_inf times the second moment of
+  // the uniform box about the centre, (w^2/12 + offset^2) summed over the axes.
+  SlabBox slab;
+  slab.dim = 3;
+  slab.lo = otfp::Vec3(0.0, -1.0, 0.0);
+  slab.hi = otfp::Vec3(2.0, 1.0, 0.5);
+  slab.axis = 0;
+  slab.length = 2.0;
+  slab.center = otfp::Vec3(0.3, 0.0, 0.1);
+  slab.M_inf = 4.0;
+  double second = 0.0;
+  for (int k = 0; k < 3; ++k) {
+    const double w = slab.hi[k] - slab.lo[k], off = 0.5 * (slab.hi[k] + slab.lo[k]) - slab.center[k];
+    second += w * w / 12.0 + off * off;
+  }
+  EXPECT_NEAR(crank_slab_polar_inertia(200.0, slab), slab.M_inf * second, 1e-12);
+  EXPECT_EQ(crank_slab_polar_inertia(0.0, slab), 0.0);
+  // Held at hi instead: the mirror image about the box centre along the axis.
+  SlabBox mirrored = slab;
+  mirrored.held_at_hi = true;
+  mirrored.center[0] = 2.0 - slab.center[0];
+  EXPECT_NEAR(crank_slab_polar_inertia(0.1, mirrored), crank_slab_polar_inertia(0.1, slab), 1e-12);
+  // At an intermediate time, against a fine midpoint rule of the profile
+  // (another quadrature than the function's Simpson rule).
+  const double transverse = second - (slab.length * slab.length / 12.0 + (1.0 - slab.center[0]) * (1.0 - slab.center[0]));
+  const int m = 20000;
+  double integral = 0.0;
+  for (int i = 0; i < m; ++i) {
+    const double depth = (i + 0.5) / m, x = slab.lo[0] + depth * slab.length;
+    const double dx = x - slab.center[0];
+    integral += crank_slab_density(0.1, depth) * (dx * dx + transverse);
+  }
+  EXPECT_NEAR(crank_slab_polar_inertia(0.1, slab), slab.M_inf * integral / m, 1e-7);
+}
+
+TEST(Analytic, TimeDiscreteRates) {
+  const double lambda = 3.0, dt = 0.2, z = lambda * dt;
+  EXPECT_NEAR(time_discrete_rate(otfp::TimeScheme::Euler, lambda, dt), std::log(1.0 + z) / dt, 1e-14);
+  // BDF2's factor is the root of (3/2 + z) g^2 - 2 g + 1/2 = 0 in (0, 1) (z = 0.3 here).
+  const double g = std::exp(-time_discrete_rate(otfp::TimeScheme::Bdf2, lambda, 0.1) * 0.1);
+  EXPECT_NEAR((1.5 + 0.3) * g * g - 2.0 * g + 0.5, 0.0, 1e-14);
+  EXPECT_GT(g, 0.5);  // the principal root, not the parasitic one
+  // Past z = 1/2 the roots are a complex pair of modulus sqrt(product) = (3 + 2 z)^-1/2.
+  EXPECT_NEAR(time_discrete_rate(otfp::TimeScheme::Bdf2, lambda, 1.0), 0.5 * std::log(3.0 + 2.0 * lambda), 1e-14);
+  EXPECT_NEAR(time_discrete_rate(otfp::ExplicitScheme::EulerForce27, lambda, 0.1), -std::log(1.0 - 0.3) / 0.1, 1e-13);
+  EXPECT_EQ(time_discrete_rate(otfp::ExplicitScheme::EulerExactGradient, lambda, 1.0), HUGE_VAL);  // 1 - z < 0
+  // Consistency: every scheme tends to lambda as dt -> 0, RK4 to fourth order.
+  EXPECT_NEAR(time_discrete_rate(otfp::ExplicitScheme::Rk4Force27, lambda, 1e-3), lambda, 1e-9);
+  EXPECT_NEAR(time_discrete_rate(otfp::TimeScheme::Bdf2, lambda, 1e-4), lambda, 1e-6);
+  EXPECT_THROW(time_discrete_rate(otfp::TimeScheme::Euler, lambda, 0.0), otfp::InvalidArgument);
+}
+
+TEST(Diagnostics, CosineAmplitudeOfALatticeIsExact) {
+  // N equispaced point blobs with masses 1 + a cos(k x): by discrete
+  // orthogonality sum cos^2 = N/2 and sum cos = 0, so the amplitude is a.
+  // Widths s damp it by exp(-k^2 s^2 / 4).
+  const int N = 64;
+  const double a = 0.3, k = 2.0 * M_PI / 2.0, x0 = -1.0, s = 0.05;
+  otfp::ParticleSet ps(1);
+  for (int j = 0; j < N; ++j) {
+    const double x = x0 + 2.0 * j / N;
+    ps.add(otfp::Vec3(x, 0.0, 0.0), s, 1.0 + a * std::cos(k * (x - x0)));
+  }
+  EXPECT_NEAR(otfp::cosine_mode_amplitude(ps, k, x0), a * std::exp(-0.25 * k * k * s * s), 1e-14);
+  EXPECT_EQ(otfp::cosine_mode_amplitude(otfp::ParticleSet(1), k, x0), 0.0);
+}
+
+TEST(Diagnostics, BlobSecondMomentAddsEachBlobsVariance) {
+  // One blob at the centre: its Gaussian's variance d s^2 / 2 times m; moving
+  // it by r adds m r^2.
+  otfp::ParticleSet ps(3);
+  ps.add(otfp::Vec3(1.0, 2.0, 3.0), 0.4, 2.0);
+  const otfp::Vec3 c(1.0, 2.0, 3.0);
+  EXPECT_NEAR(otfp::blob_second_moment(ps, c), 2.0 * 1.5 * 0.16, 1e-15);
+  EXPECT_NEAR(otfp::blob_second_moment(ps, c + otfp::Vec3(0.0, 3.0, 4.0)), 2.0 * (25.0 + 1.5 * 0.16), 1e-13);
 }

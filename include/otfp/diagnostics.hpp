@@ -40,6 +40,17 @@ struct StateMeasures {
 StateMeasures measure_state(const Domain& domain, const BufferSpec& buffer, const ParticleSet& particles,
                             const Vec3& center, double t, std::vector<std::int32_t>* region = nullptr);
 
+// Second moment of the blob density about c: sum_p m_p (|x_p - c|^2 + d s_p^2 / 2)
+// (each Gaussian adds its own variance d s^2 / 2; it grows by 2 d kappa M t
+// in free space, analytic::free_space_variance_growth per axis).
+double blob_second_moment(const ParticleSet& particles, const Vec3& center);
+
+// Amplitude a of the mode 1 + a cos(k (x - x0)) of the blob density along
+// the first axis: (2 / M) sum_p m_p exp(-k^2 s_p^2 / 4) cos(k (x_p - x0))
+// (a Gaussian of width s damps the mode by exp(-k^2 s^2 / 4)). 0 for an
+// empty set.
+double cosine_mode_amplitude(const ParticleSet& particles, double wavenumber, double x0);
+
 // Running L1-in-time norms (46). The rectangle sums are (46a)-(46b) as
 // printed: sum over k = 0..K of the value at t_k times dt, over all particles
 // (external shells included); the trapezoid sums integrate the inside and

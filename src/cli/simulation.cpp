@@ -212,23 +212,6 @@ void check_fill_file(const Config& c, const otfp::Simulation& sim, const Particl
   }
 }
 
-// Discrete decay factor per step of the mode exp(-lambda t) under the time
-// scheme alone (exact in space), as a rate: what the stepper would give
-// with an exact spatial operator.
-double time_discrete_rate(const std::string& scheme, double lambda, double dt) {
-  const double z = lambda * dt;
-  double g = 0.0;
-  if (scheme == "implicit")
-    g = 1.0 / (1.0 + z);
-  else if (scheme == "bdf2")  // principal root of (3/2 + z) g^2 - 2 g + 1/2 = 0 (constant steps)
-    g = (2.0 + std::sqrt(1.0 + 2.0 * z)) / (3.0 + 2.0 * z);
-  else if (scheme == "rk4")
-    g = 1.0 - z + z * z / 2.0 - z * z * z / 6.0 + z * z * z * z / 24.0;
-  else
-    g = 1.0 - z;
-  return g > 0.0 ? -std::log(g) / dt : std::numeric_limits<double>::infinity();
-}
-
 }  // namespace
 
 // Everything that changes while running.
@@ -687,7 +670,6 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
     r.step = step;
     r.t = t;
     r.dt = step == 0 ? 0.0 : step_dt;
-    const std::size_t n = particles.size();
     // (43)-(44) inside Omega and with the buffer outside the Dirichlet faces.
     const StateMeasures ms = sim.measure(d.center, &region);
     r.n_particles = ms.n_particles;
@@ -746,39 +728,23 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
         if (ref == "crank_sphere") {
           rj = *d.reference_J_inf * analytic::crank_sphere_polar_inertia(tau);
         } else if (t > 0.0) {
-          // Slab: g A * integral over the depth xi of rho/g times the squared
-          // distance to the centre (Simpson, 512 intervals); the transverse
-          // axes contribute their uniform second moment.
-          const int a = d.slab_axis;
-          double transverse = 0.0;
-          for (int k = 0; k < dim; ++k)
-            if (k != a) {
-              const double w = c.domain.hi[k] - c.domain.lo[k], mid = 0.5 * (c.domain.hi[k] + c.domain.lo[k]);
-              transverse += w * w / 12.0 + (mid - d.center[k]) * (mid - d.center[k]);
-            }
-          const int intervals = 512;
-          double integral = 0.0;
-          for (int i = 0; i <= intervals; ++i) {
-            const double depth = static_cast<double>(i) / intervals;
-            const double x = d.slab_held_at_hi ? c.domain.hi[a] - depth * L : c.domain.lo[a] + depth * L;
-            const double w = (i == 0 || i == intervals) ? 1.0 : (i % 2 ? 4.0 : 2.0);
-            integral += w * analytic::crank_slab_density(tau, depth) *
-                        ((x - d.center[a]) * (x - d.center[a]) + transverse);
-          }
-          rj = d.M_inf * integral / (3.0 * intervals);  // M_inf = g |Omega|, depth in units of L
+          analytic::SlabBox slab;
+          slab.dim = dim;
+          slab.lo = c.domain.lo;
+          slab.hi = c.domain.hi;
+          slab.axis = d.slab_axis;
+          slab.held_at_hi = d.slab_held_at_hi;
+          slab.length = L;
+          slab.center = d.center;
+          slab.M_inf = d.M_inf;
+          rj = analytic::crank_slab_polar_inertia(tau, slab);
         }
         rv.push_back(rj);
         rv.push_back(ref_stats[1].add(t, r.polar_inertia, rj));
       }
       r.error_mass_blob = blob_stats.add(t, r.mass_blob_ratio, rm);
     } else if (ref == "free_space") {
-      // Second moment of the blob density about the centre: each Gaussian adds
-      // its own variance d s^2 / 2, which matters when the widths change.
-      double S = 0.0;
-      for (std::size_t p = 0; p < n; ++p) {
-        const double sp = particles.widths()[p];
-        S += particles.masses()[p] * ((particles.positions()[p] - d.center).squaredNorm() + 0.5 * dim * sp * sp);
-      }
+      const double S = blob_second_moment(particles, d.center);
       if (step == 0) {
         S0 = S;
         add_stats("second_moment", 2.0 * dim * c.physics.kappa * r.mass_total * c.run.t_end,
@@ -787,16 +753,8 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       const double rs = S0 + 2.0 * dim * c.physics.kappa * M0 * t;
       rv = {S, rs, ref_stats[0].add(t, S, rs)};
     } else if (ref == "cosine_mode") {
-      // Fourier coefficient of the blob density: a Gaussian of width s damps
-      // the mode by exp(-k^2 s^2 / 4).
       const double k = d.mode_wavenumber;
-      double A = 0.0;
-      for (std::size_t p = 0; p < n; ++p) {
-        const double sp = particles.widths()[p];
-        A += particles.masses()[p] * std::exp(-0.25 * k * k * sp * sp) *
-             std::cos(k * (particles.positions()[p][0] - c.domain.lo[0]));
-      }
-      A *= 2.0 / r.mass_total;
+      const double A = cosine_mode_amplitude(particles, k, c.domain.lo[0]);
       if (step == 0) {
         A0 = A;
         add_stats("mode_amplitude", std::abs(A0), "the initial amplitude a(0)");
@@ -981,12 +939,12 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
           const double m = static_cast<double>(mode_log.size());
           rate = -(m * sty - st_ * sy) / (m * stt - st_ * st_);
         }
-        const std::string scheme = c.solver.stepper != "implicit" ? c.solver.explicit_scheme
-                                   : c.solver.time_scheme == "bdf2" ? "bdf2"
-                                                                    : "implicit";
         // Constant steps only (BDF2: its first step is Euler).
-        const double discrete = c.run.dt_mode == "fixed" ? time_discrete_rate(scheme, lambda, d.dt)
-                                                         : std::numeric_limits<double>::quiet_NaN();
+        const double discrete =
+            c.run.dt_mode != "fixed" ? std::numeric_limits<double>::quiet_NaN()
+            : c.solver.stepper != "implicit"
+                ? analytic::time_discrete_rate(explicit_scheme_from_string(c.solver.explicit_scheme), lambda, d.dt)
+                : analytic::time_discrete_rate(time_scheme_from_string(c.solver.time_scheme), lambda, d.dt);
         j["reference"]["wavenumber"] = d.mode_wavenumber;
         j["reference"]["kappa_k2"] = lambda;
         j["reference"]["rows_fitted"] = mode_log.size();
