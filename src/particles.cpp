@@ -146,4 +146,19 @@ double ParticleSet::total_mass() const {
   return m;
 }
 
+void ParticleSet::assign_in_place(const ParticleSet& other) {
+  require(other.dim_ == dim_, "assign_in_place: dim", other.dim_,
+          "must equal this set's dim " + std::to_string(dim_));
+  require(other.size() == size(), "assign_in_place: size", static_cast<double>(other.size()),
+          "must equal this set's size " + std::to_string(size()));
+  if (&other == this) return;
+  std::copy(other.x_.begin(), other.x_.end(), x_.begin());
+  std::copy(other.s_.begin(), other.s_.end(), s_.begin());
+  std::copy(other.m_.begin(), other.m_.end(), m_.begin());
+  std::copy(other.birth_.begin(), other.birth_.end(), birth_.begin());
+  std::copy(other.id_.begin(), other.id_.end(), id_.begin());
+  index_ = other.index_;
+  next_id_ = other.next_id_;
+}
+
 }  // namespace otfp

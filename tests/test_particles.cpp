@@ -122,3 +122,27 @@ TEST(Rng, IsReproducibleAndUniform) {
   EXPECT_NEAR(sum / n, 0.0, 3.0 / std::sqrt(n));
   EXPECT_NEAR(sum2 / n, 1.0, 3.0 * std::sqrt(2.0 / n));
 }
+
+TEST(ParticleSet, AssignInPlaceKeepsTheArrays) {
+  otfp::ParticleSet a(2), b(2);
+  for (int i = 0; i < 5; ++i) a.add(otfp::Vec3(i, 0.0, 0.0), 0.1, 1.0);
+  for (int i = 0; i < 5; ++i) b.add(otfp::Vec3(0.0, i, 0.0), 0.2 + i, 2.0, 0.5);
+  b.reorder({4, 3, 2, 1, 0});
+  const double* px = a.positions()[0].data();
+  const double* ps = a.widths().data();
+  a.assign_in_place(b);
+  EXPECT_EQ(a.positions()[0].data(), px);  // same storage
+  EXPECT_EQ(a.widths().data(), ps);
+  for (std::size_t p = 0; p < 5; ++p) {
+    EXPECT_EQ(a.positions()[p], b.positions()[p]);
+    EXPECT_EQ(a.widths()[p], b.widths()[p]);
+    EXPECT_EQ(a.ids()[p], b.ids()[p]);
+    EXPECT_EQ(a.index_of(b.ids()[p]), static_cast<std::ptrdiff_t>(p));
+  }
+  EXPECT_EQ(a.next_id(), b.next_id());
+  otfp::ParticleSet c(2);
+  EXPECT_THROW(a.assign_in_place(c), otfp::InvalidArgument);
+  otfp::ParticleSet d(3);
+  for (int i = 0; i < 5; ++i) d.add(otfp::Vec3::Zero(), 0.1, 1.0);
+  EXPECT_THROW(a.assign_in_place(d), otfp::InvalidArgument);
+}

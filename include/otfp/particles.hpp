@@ -74,6 +74,12 @@ class ParticleSet {
   // Sets every width to s = beta^-1/2.
   void set_uniform_beta(double beta);
 
+  // Takes other's particles (positions, widths, masses, birth times, ids and
+  // the id counter) into the existing arrays: no array is reallocated, so
+  // pointers into them (e.g. numpy views) stay valid. Throws InvalidArgument
+  // unless other has the same dim() and size().
+  void assign_in_place(const ParticleSet& other);
+
  private:
   int dim_;
   std::vector<Vec3> x_;

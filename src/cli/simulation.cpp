@@ -218,6 +218,8 @@ void check_fill_file(const Config& c, const otfp::Simulation& sim, const Particl
 struct ConfiguredRun::State {
   detail::BuiltDomain built;
   std::unique_ptr<otfp::Simulation> sim;  // Algorithm 1
+  std::vector<ConstantBoundaryData> data;  // what sim was built from (make_simulation())
+  SimulationOptions options;
   std::optional<ParticleSet> file_particles;  // particles.fill = "file": read (and checked) once
 };
 
@@ -501,6 +503,8 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   tco.dt_min = c.run.dt_min ? *c.run.dt_min : 1e-3 * d.dt;
   tco.dt_max = std::max(c.run.dt_max ? *c.run.dt_max : c.run.t_end, tco.dt_min);
   try {
+    st.data = data;
+    st.options = so;
     st.sim = std::make_unique<otfp::Simulation>(domain_, std::move(data), so);
   } catch (const SimulationSetupError& e) {
     using Stage = SimulationSetupError::Stage;
@@ -581,6 +585,39 @@ nlohmann::json ConfiguredRun::describe() const {
                         {"lattice_counts", d.lattice_counts},
                         {"patches", pj}};
   return {{"config", cfg}, {"derived", der}};
+}
+
+ParticleSet ConfiguredRun::initial_particles(Rng& rng) const {
+  const Config& c = config_;
+  const Derived& d = derived_;
+  ParticleSet fill(c.run.dim);
+  if (state_->file_particles) {
+    fill = *state_->file_particles;
+  } else if (d.fill_count > 0) {  // a lattice is filled whatever particles.fill says
+    FillOptions fo;
+    fo.shape = c.particles.fill == "empty" ? FillShape::Uniform : fill_shape_from_string(c.particles.fill);
+    fo.count = d.fill_count;
+    fo.width_s = d.width_s;
+    fo.mass = d.particle_mass;
+    fo.lattice = c.particles.fill_arrangement == "lattice";
+    fo.lattice_counts = d.lattice_counts;
+    fo.lo = c.domain.lo;
+    fo.hi = c.domain.hi;
+    fo.center = c.particles.fill_center.value_or(d.center);
+    fo.sigma = c.particles.fill_sigma;
+    fo.amplitude = c.particles.fill_amplitude;
+    fo.wavenumber = d.mode_wavenumber;
+    fill = fill_particles(*domain_, fo, rng);
+  }
+  return fill;
+}
+
+std::unique_ptr<otfp::Simulation> ConfiguredRun::make_simulation() const {
+  auto sim = std::make_unique<otfp::Simulation>(domain_, state_->data, state_->options);
+  Rng rng(static_cast<std::uint64_t>(config_.run.seed));  // the stream run() uses
+  ParticleSet fill = initial_particles(rng);
+  sim->start(std::move(fill), rng, 0.0);
+  return sim;
 }
 
 RunResult ConfiguredRun::run(const RunOptions& options) {
@@ -1077,26 +1114,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
     };
 
     if (!options.resume) {
-      // Initial fill.
-      ParticleSet fill(dim);
-      if (st.file_particles) {
-        fill = *st.file_particles;
-      } else if (d.fill_count > 0) {  // a lattice is filled whatever particles.fill says
-        FillOptions fo;
-        fo.shape = c.particles.fill == "empty" ? FillShape::Uniform : fill_shape_from_string(c.particles.fill);
-        fo.count = d.fill_count;
-        fo.width_s = d.width_s;
-        fo.mass = d.particle_mass;
-        fo.lattice = c.particles.fill_arrangement == "lattice";
-        fo.lattice_counts = d.lattice_counts;
-        fo.lo = c.domain.lo;
-        fo.hi = c.domain.hi;
-        fo.center = c.particles.fill_center.value_or(d.center);
-        fo.sigma = c.particles.fill_sigma;
-        fo.amplitude = c.particles.fill_amplitude;
-        fo.wavenumber = d.mode_wavenumber;
-        fill = fill_particles(*domain_, fo, rng);
-      }
+      ParticleSet fill = initial_particles(rng);
       n0 = static_cast<std::int64_t>(fill.size());
       M0 = fill.total_mass();
 

@@ -20,6 +20,7 @@
 #include "otfp/boundary.hpp"
 #include "otfp/geometry.hpp"
 #include "otfp/particles.hpp"
+#include "otfp/simulation.hpp"
 #include "otfp_app/config.hpp"
 
 namespace otfp::app {
@@ -132,9 +133,18 @@ class ConfiguredRun {
 
   RunResult run(const RunOptions& options);
 
+  // A new Simulation built as run() builds its own and started with the same
+  // initial particles and random stream: stepping it with advance_to(k dt)
+  // (dt = derived().dt) reproduces run()'s steps bit for bit. For callers that
+  // step themselves (the Python module); nothing is written.
+  std::unique_ptr<otfp::Simulation> make_simulation() const;
+  // The initial particles of the configuration (particles.fill), drawn from rng.
+  ParticleSet initial_particles(Rng& rng) const;
+
   const Config& config() const { return config_; }
   const Derived& derived() const { return derived_; }
   const Domain& domain() const { return *domain_; }
+  DomainPtr domain_ptr() const { return domain_; }
   const std::vector<PatchInfo>& patches() const { return patches_; }
   // The resolved configuration and derived numbers (summary.json "config"/"derived").
   nlohmann::json describe() const;

@@ -1,0 +1,894 @@
+// The Python module otfp._otfp (re-exported by the package otfp): particle
+// sets, domains, the functional (28), the steppers, otfp::Simulation, the
+// diagnostics and analytic references, and the command-line tool's TOML
+// configurations. docs/python.md describes the API.
+//
+// Arrays: a ParticleSet's positions, widths, masses, birth times and ids are
+// numpy views of its own storage (no copy); while a view is alive the set
+// refuses to change size or order (BufferError, as bytearray does), because
+// that would move the storage. Everything else (a Simulation's particles,
+// gradients, point queries) is returned as a new array.
+#include <pybind11/eigen.h>
+#include <pybind11/functional.h>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+#include <pybind11/stl/filesystem.h>
+
+#include <cmath>
+#include <limits>
+#include <memory>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "otfp/analytic.hpp"
+#include "otfp/barrier.hpp"
+#include "otfp/diagnostics.hpp"
+#include "otfp/enums.hpp"
+#include "otfp/explicit_stepper.hpp"
+#include "otfp/functional.hpp"
+#include "otfp/geometry.hpp"
+#include "otfp/implicit_stepper.hpp"
+#include "otfp/initial_fill.hpp"
+#include "otfp/neighbor_list.hpp"
+#include "otfp/particle_io.hpp"
+#include "otfp/particles.hpp"
+#include "otfp/simulation.hpp"
+#include "otfp/time_step_control.hpp"
+#include "otfp/types.hpp"
+#include "otfp_app/config.hpp"
+#include "otfp_app/simulation.hpp"
+
+namespace py = pybind11;
+using namespace otfp;
+
+namespace {
+
+// ------------------------------------------------------------------ arrays
+
+using DoubleArray = py::array_t<double, py::array::c_style | py::array::forcecast>;
+
+// (n, k) with 1 <= k <= 3 (or a single point of k values) -> n points padded with zeros.
+std::vector<Vec3> points_from(const DoubleArray& a, const char* name) {
+  std::vector<Vec3> out;
+  if (a.ndim() == 1) {
+    if (a.shape(0) < 1 || a.shape(0) > 3)
+      throw InvalidArgument(std::string(name) + ": a point has 1 to 3 coordinates, got " + std::to_string(a.shape(0)));
+    Vec3 v = Vec3::Zero();
+    for (py::ssize_t k = 0; k < a.shape(0); ++k) v[k] = a.at(k);
+    out.push_back(v);
+    return out;
+  }
+  if (a.ndim() != 2 || a.shape(1) < 1 || a.shape(1) > 3)
+    throw InvalidArgument(std::string(name) + ": must be an array of shape (n, d) with d = 1, 2 or 3");
+  const auto r = a.unchecked<2>();
+  out.assign(static_cast<std::size_t>(a.shape(0)), Vec3::Zero());
+  for (py::ssize_t i = 0; i < a.shape(0); ++i)
+    for (py::ssize_t k = 0; k < a.shape(1); ++k) out[static_cast<std::size_t>(i)][k] = r(i, k);
+  return out;
+}
+
+std::vector<double> values_from(const DoubleArray& a, std::size_t n, const char* name) {
+  if (a.ndim() != 1 || static_cast<std::size_t>(a.shape(0)) != n)
+    throw InvalidArgument(std::string(name) + ": must be a 1-D array of " + std::to_string(n) + " values");
+  return std::vector<double>(a.data(), a.data() + n);
+}
+
+py::array_t<double> points_to(const std::vector<Vec3>& x) {
+  py::array_t<double> out({static_cast<py::ssize_t>(x.size()), py::ssize_t{3}});
+  auto w = out.mutable_unchecked<2>();
+  for (std::size_t i = 0; i < x.size(); ++i)
+    for (int k = 0; k < 3; ++k) w(static_cast<py::ssize_t>(i), k) = x[i][k];
+  return out;
+}
+
+py::array_t<double> values_to(const std::vector<double>& v) {
+  return py::array_t<double>(static_cast<py::ssize_t>(v.size()), v.data());
+}
+
+// Live numpy views per ParticleSet: a set with views must not move its storage.
+std::unordered_map<const ParticleSet*, long>& exports() {
+  static std::unordered_map<const ParticleSet*, long> map;
+  return map;
+}
+
+struct ViewBase {
+  py::object owner;  // keeps the set alive
+  const ParticleSet* set;
+};
+
+template <class T>
+py::array view_of(py::object owner, const ParticleSet& set, T* data, std::vector<py::ssize_t> shape, bool writable) {
+  auto* base = new ViewBase{owner, &set};
+  ++exports()[&set];
+  py::capsule cap(base, [](void* p) {
+    auto* b = static_cast<ViewBase*>(p);
+    if (--exports()[b->set] == 0) exports().erase(b->set);
+    delete b;
+  });
+  std::vector<py::ssize_t> strides;
+  py::ssize_t stride = sizeof(T);
+  for (auto it = shape.rbegin(); it != shape.rend(); ++it) {
+    strides.insert(strides.begin(), stride);
+    stride *= *it;
+  }
+  py::array a(py::dtype::of<T>(), shape, strides, data, cap);
+  if (!writable) a.attr("flags").attr("writeable") = false;
+  return a;
+}
+
+void require_no_views(const ParticleSet& set, const char* what) {
+  auto it = exports().find(&set);
+  if (it != exports().end() && it->second > 0)
+    throw py::buffer_error(std::string(what) + ": " + std::to_string(it->second) +
+                           " numpy view(s) of this ParticleSet are alive and would be left pointing at freed "
+                           "memory; delete them (or take copies with numpy.array(view)) first");
+}
+
+// Runs f on a copy of `set` and takes the result back without moving the
+// storage (the steppers reorder particles; views stay valid and see the result).
+template <class F>
+auto on_copy(ParticleSet& set, F&& f) {
+  ParticleSet work = set;
+  auto result = [&] {
+    py::gil_scoped_release release;
+    return f(work);
+  }();
+  set.assign_in_place(work);
+  return result;
+}
+
+// ------------------------------------------------------------------ options
+
+// An options class: fields bound read/write and listed in _fields, so that the
+// package's __init__ can accept keyword arguments and print them.
+template <class T>
+class Options {
+ public:
+  Options(py::module_& m, const char* name, const char* doc) : cls_(m, name, doc) {
+    cls_.def(py::init<>());
+  }
+  template <class M>
+  Options& field(const char* name, M T::*member, const char* doc) {
+    cls_.def_readwrite(name, member, doc);
+    fields_.append(name);
+    return *this;
+  }
+  Options& validated() {
+    cls_.def("validate", [](const T& o) { o.validate(); }, "Raises ValueError naming the offending field.");
+    return *this;
+  }
+  void done() { cls_.attr("_fields") = fields_; }
+
+ private:
+  py::class_<T> cls_;
+  py::list fields_;
+};
+
+// An enum with its names as strings: Backend("nlopt") and a plain "nlopt"
+// wherever a Backend is expected.
+template <class E, class FromString>
+void bind_enum(py::module_& m, const char* name, std::initializer_list<std::pair<const char*, E>> values,
+               FromString from_string) {
+  py::enum_<E> e(m, name);
+  for (const auto& [n, v] : values) e.value(n, v);
+  e.def(py::init([from_string](const std::string& s) { return from_string(s); }));
+  e.def("__str__", [](E v) { return to_string(v); });
+  py::implicitly_convertible<py::str, E>();
+}
+
+template <class E>
+E no_from_string(const std::string& s) {
+  throw InvalidArgument("\"" + s + "\" cannot be converted to this enum");
+}
+
+// ------------------------------------------------------------------ domains
+
+using PyDomain = std::shared_ptr<Domain>;
+PyDomain mutable_domain(const DomainPtr& d) { return std::const_pointer_cast<Domain>(d); }
+
+// A scalar for one point (1-D input), else an array over the points.
+template <class F>
+py::object per_point(const DoubleArray& a, F f) {
+  const std::vector<Vec3> x = points_from(a, "points");
+  if (a.ndim() == 1) return py::cast(f(x[0]));
+  using R = decltype(f(x[0]));
+  if constexpr (std::is_same_v<R, Vec3>) {
+    std::vector<Vec3> out(x.size());
+    for (std::size_t i = 0; i < x.size(); ++i) out[i] = f(x[i]);
+    return points_to(out);
+  } else {
+    py::array_t<R> out(static_cast<py::ssize_t>(x.size()));
+    auto w = out.template mutable_unchecked<1>();
+    for (std::size_t i = 0; i < x.size(); ++i) w(static_cast<py::ssize_t>(i)) = f(x[i]);
+    return out;
+  }
+}
+
+Barrier make_barrier(const PyDomain& domain, double stiffness) {
+  if (!domain || stiffness <= 0.0) return Barrier{};
+  return Barrier(domain, stiffness);
+}
+
+Periodicity periodicity_of(const PyDomain& domain, int dim) {
+  return domain ? Periodicity::from_domain(*domain) : Periodicity::none(dim);
+}
+
+int dim_of(const PyDomain& domain, std::optional<int> dim) {
+  if (domain) {
+    if (dim && *dim != domain->dim())
+      throw InvalidArgument("dim = " + std::to_string(*dim) + ": must equal the domain's dim " +
+                            std::to_string(domain->dim()));
+    return domain->dim();
+  }
+  if (!dim) throw InvalidArgument("dim: required when no domain is given");
+  return *dim;
+}
+
+// ------------------------------------------------------------------ functional
+
+// Functional (28) with its own reference state; evaluate() returns value, parts
+// and gradients as arrays.
+class PyFunctional {
+ public:
+  PyFunctional(int dim, const FunctionalOptions& options, const PyDomain& domain, double barrier_stiffness)
+      : functional_(dim, options, make_barrier(domain, barrier_stiffness), periodicity_of(domain, dim)) {}
+
+  void set_reference(const DoubleArray& x, const DoubleArray& s, const DoubleArray& m) {
+    x_ref_ = points_from(x, "x_ref");
+    const std::size_t n = x_ref_.size();
+    s_ref_ = values_from(s, n, "s_ref");
+    functional_.set_reference(x_ref_, s_ref_, values_from(m, n, "masses"));
+    has_reference_ = true;
+  }
+
+  py::dict evaluate(const DoubleArray& x, const DoubleArray& s, bool all_pairs) {
+    if (!has_reference_) throw InvalidArgument("Functional.evaluate: call set_reference() first");
+    const std::vector<Vec3> xv = points_from(x, "x");
+    if (xv.size() != x_ref_.size())
+      throw InvalidArgument("x: must have the reference's " + std::to_string(x_ref_.size()) + " rows");
+    const std::vector<double> sv = values_from(s, xv.size(), "s");
+    Gradient g;
+    g.resize(xv.size(), functional_.options().optimise_widths);
+    FunctionalParts parts;
+    {
+      py::gil_scoped_release release;
+      parts = all_pairs ? functional_.evaluate_all_pairs(xv, sv, &g) : functional_.evaluate(xv, sv, &g);
+    }
+    py::dict out;
+    out["value"] = parts.total();
+    out["transport"] = parts.transport;
+    out["entropy"] = parts.entropy;
+    out["barrier"] = parts.barrier;
+    out["gradient_x"] = points_to(g.x);
+    out["gradient_s"] = functional_.options().optimise_widths ? py::object(values_to(g.s)) : py::object(py::none());
+    out["density"] = values_to(functional_.entropy().density());
+    return out;
+  }
+
+  Functional& functional() { return functional_; }
+
+ private:
+  Functional functional_;
+  std::vector<Vec3> x_ref_;
+  std::vector<double> s_ref_;
+  bool has_reference_ = false;
+};
+
+// ------------------------------------------------------------------ observer stop
+
+// Thrown by the observer wrapper when the Python observer returns False.
+struct StopRequested {};
+
+py::dict json_to_dict(const nlohmann::json& j) {
+  py::module_ json = py::module_::import("json");
+  return json.attr("loads")(j.dump()).cast<py::dict>();
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_otfp, m) {
+  m.doc() = "otfp: the optimal-transport finite-particle method of driven mass diffusion (C++ core)";
+  // One-line messages that name the field: subclasses of ValueError (bad
+  // input) and RuntimeError (a step that could not be taken).
+  py::register_exception<InvalidArgument>(m, "InvalidArgument", PyExc_ValueError);
+  py::register_exception<app::ConfigError>(m, "ConfigError", PyExc_ValueError);
+  py::register_exception<StepFailure>(m, "StepFailure", PyExc_RuntimeError);
+  m.attr("__version__") = app::version();
+
+  // ---- enums
+  bind_enum<Backend>(m, "Backend", {{"Ceres", Backend::Ceres}, {"Nlopt", Backend::Nlopt}}, backend_from_string);
+  bind_enum<Algorithm>(m, "Algorithm",
+                       {{"Lbfgs", Algorithm::Lbfgs}, {"Bfgs", Algorithm::Bfgs}, {"NonlinearCg", Algorithm::NonlinearCg},
+                        {"TruncatedNewton", Algorithm::TruncatedNewton}, {"Var2", Algorithm::Var2}, {"Mma", Algorithm::Mma}},
+                       algorithm_from_string);
+  bind_enum<TerminationReason>(
+      m, "TerminationReason",
+      {{"Converged", TerminationReason::Converged}, {"FunctionTolerance", TerminationReason::FunctionTolerance},
+       {"MaxIterations", TerminationReason::MaxIterations}, {"MaxEvaluations", TerminationReason::MaxEvaluations},
+       {"LineSearchFailure", TerminationReason::LineSearchFailure}, {"NonFinite", TerminationReason::NonFinite},
+       {"Failure", TerminationReason::Failure}},
+      no_from_string<TerminationReason>);
+  bind_enum<WidthMetric>(m, "WidthMetric",
+                         {{"AsPrinted", WidthMetric::AsPrinted}, {"ExactGaussian", WidthMetric::ExactGaussian}},
+                         width_metric_from_string);
+  bind_enum<WidthMode>(m, "WidthMode", {{"Fixed", WidthMode::Fixed}, {"PerParticle", WidthMode::PerParticle}},
+                       width_mode_from_string);
+  bind_enum<TimeScheme>(m, "TimeScheme", {{"Euler", TimeScheme::Euler}, {"Bdf2", TimeScheme::Bdf2}},
+                        time_scheme_from_string);
+  bind_enum<Predictor>(m, "Predictor",
+                       {{"None_", Predictor::None}, {"Extrapolate", Predictor::Extrapolate}, {"Damped", Predictor::Damped}},
+                       predictor_from_string);
+  bind_enum<ExplicitScheme>(m, "ExplicitScheme",
+                            {{"EulerForce27", ExplicitScheme::EulerForce27}, {"Rk4Force27", ExplicitScheme::Rk4Force27},
+                             {"EulerExactGradient", ExplicitScheme::EulerExactGradient}},
+                            explicit_scheme_from_string);
+  bind_enum<PatchKind>(m, "PatchKind",
+                       {{"NoFlux", PatchKind::NoFlux}, {"Dirichlet", PatchKind::Dirichlet}, {"Neumann", PatchKind::Neumann}},
+                       patch_kind_from_string);
+  bind_enum<NeumannOutflow>(m, "NeumannOutflow",
+                            {{"Layer", NeumannOutflow::Layer}, {"NearestParticles", NeumannOutflow::NearestParticles}},
+                            neumann_outflow_from_string);
+  bind_enum<DirichletMode>(m, "DirichletMode",
+                           {{"Layer", DirichletMode::Layer}, {"Reservoir", DirichletMode::Reservoir}},
+                           dirichlet_mode_from_string);
+  bind_enum<ReservoirProfile>(m, "ReservoirProfile",
+                              {{"Uniform", ReservoirProfile::Uniform}, {"Odd", ReservoirProfile::Odd}},
+                              reservoir_profile_from_string);
+  bind_enum<DirichletTarget>(m, "DirichletTarget",
+                             {{"CellIntegral", DirichletTarget::CellIntegral}, {"PaperEq34", DirichletTarget::PaperEq34}},
+                             dirichlet_target_from_string);
+  bind_enum<StepperKind>(m, "StepperKind", {{"Implicit", StepperKind::Implicit}, {"Explicit", StepperKind::Explicit}},
+                         stepper_kind_from_string);
+  bind_enum<NoFluxTreatment>(m, "NoFluxTreatment",
+                             {{"Barrier", NoFluxTreatment::Barrier}, {"Images", NoFluxTreatment::Images}},
+                             no_flux_treatment_from_string);
+  bind_enum<FillShape>(m, "FillShape",
+                       {{"Uniform", FillShape::Uniform}, {"Gaussian", FillShape::Gaussian}, {"Cosine", FillShape::Cosine}},
+                       fill_shape_from_string);
+
+  // ---- random numbers
+  py::class_<Rng>(m, "Rng", "xoshiro256** seeded by SplitMix64: the same seed gives the same stream everywhere.")
+      .def(py::init<std::uint64_t>(), py::arg("seed") = 0x5eed)
+      .def("uniform", py::overload_cast<>(&Rng::uniform))
+      .def("normal", &Rng::normal);
+
+  // ---- particles
+  py::class_<ParticleSet>(m, "ParticleSet",
+                          "Gaussian blobs in d = 1, 2, 3. positions (n, 3), widths s = beta^-1/2, masses, "
+                          "birth_times and ids are numpy views of the set's storage.")
+      .def(py::init<int>(), py::arg("dim") = 3)
+      .def(py::init([](int dim, const DoubleArray& x, const DoubleArray& s, const DoubleArray& mass) {
+             const std::vector<Vec3> xv = points_from(x, "positions");
+             const std::vector<double> sv = values_from(s, xv.size(), "widths");
+             const std::vector<double> mv = values_from(mass, xv.size(), "masses");
+             ParticleSet ps(dim);
+             ps.reserve(xv.size());
+             for (std::size_t i = 0; i < xv.size(); ++i) ps.add(xv[i], sv[i], mv[i]);
+             return ps;
+           }),
+           py::arg("dim"), py::arg("positions"), py::arg("widths"), py::arg("masses"),
+           "A set from arrays: positions (n, d), widths s (n,), masses (n,); ids 0 .. n-1.")
+      .def_property_readonly("dim", &ParticleSet::dim)
+      .def("__len__", &ParticleSet::size)
+      .def_property_readonly(
+          "positions",
+          [](py::object self) {
+            auto& ps = self.cast<ParticleSet&>();
+            return view_of(self, ps, ps.positions().empty() ? nullptr : ps.positions()[0].data(),
+                           {static_cast<py::ssize_t>(ps.size()), 3}, true);
+          },
+          "(n, 3) view; columns beyond dim stay 0")
+      .def_property_readonly("widths",
+                             [](py::object self) {
+                               auto& ps = self.cast<ParticleSet&>();
+                               return view_of(self, ps, ps.widths().data(), {static_cast<py::ssize_t>(ps.size())}, true);
+                             })
+      .def_property_readonly("masses",
+                             [](py::object self) {
+                               auto& ps = self.cast<ParticleSet&>();
+                               return view_of(self, ps, ps.masses().data(), {static_cast<py::ssize_t>(ps.size())}, true);
+                             })
+      .def_property_readonly("birth_times",
+                             [](py::object self) {
+                               auto& ps = self.cast<ParticleSet&>();
+                               return view_of(self, ps, ps.birth_times().data(),
+                                              {static_cast<py::ssize_t>(ps.size())}, true);
+                             })
+      .def_property_readonly("ids",
+                             [](py::object self) {
+                               auto& ps = self.cast<ParticleSet&>();
+                               return view_of(self, ps, const_cast<ParticleId*>(ps.ids().data()),
+                                              {static_cast<py::ssize_t>(ps.size())}, false);
+                             })
+      .def("ages", [](const ParticleSet& ps, double t) {
+        std::vector<double> a(ps.size());
+        for (std::size_t p = 0; p < ps.size(); ++p) a[p] = t - ps.birth_times()[p];
+        return values_to(a);
+      }, py::arg("t"), "t - birth time per particle (a new array)")
+      .def_property_readonly("betas", [](const ParticleSet& ps) {
+        std::vector<double> b(ps.size());
+        for (std::size_t p = 0; p < ps.size(); ++p) b[p] = ps.beta(p);
+        return values_to(b);
+      }, "beta = 1 / s^2 per particle (a new array)")
+      .def("add",
+           [](ParticleSet& ps, const DoubleArray& x, double width_s, double mass, double birth_time) {
+             require_no_views(ps, "ParticleSet.add");
+             require(std::isfinite(width_s) && width_s > 0.0, "width_s", width_s, "must be finite and > 0");
+             require(std::isfinite(mass) && mass > 0.0, "mass", mass, "must be finite and > 0");
+             return ps.add(points_from(x, "x").at(0), width_s, mass, birth_time);
+           },
+           py::arg("x"), py::arg("width_s"), py::arg("mass"), py::arg("birth_time") = 0.0, "Appends one particle; returns its id.")
+      .def("remove",
+           [](ParticleSet& ps, std::size_t index) {
+             require_no_views(ps, "ParticleSet.remove");
+             require(index < ps.size(), "index", static_cast<double>(index), "must be below the number of particles");
+             ps.remove(index);
+           },
+           py::arg("index"))
+      .def("clear", [](ParticleSet& ps) {
+        require_no_views(ps, "ParticleSet.clear");
+        ps.clear();
+      })
+      .def("index_of", &ParticleSet::index_of, py::arg("id"))
+      .def("total_mass", &ParticleSet::total_mass)
+      .def_property_readonly("next_id", &ParticleSet::next_id)
+      .def("copy", [](const ParticleSet& ps) { return ParticleSet(ps); })
+      .def("__copy__", [](const ParticleSet& ps) { return ParticleSet(ps); })
+      .def("__deepcopy__", [](const ParticleSet& ps, py::dict) { return ParticleSet(ps); })
+      .def("__repr__", [](const ParticleSet& ps) {
+        return "ParticleSet(dim=" + std::to_string(ps.dim()) + ", n=" + std::to_string(ps.size()) + ")";
+      });
+  m.def("read_particles", &read_particles, py::arg("path"), py::arg("dim"),
+        "Particles from a CSV (particles_final.csv's columns) or an otfp .vtp.");
+  m.def("particles_csv", [](const ParticleSet& ps) { return particles_csv(ps); }, py::arg("particles"),
+        "The CSV text of particles_final.csv (round-trips bit for bit).");
+
+  // ---- domains
+  py::class_<Domain, PyDomain>(m, "Domain", "Signed distance plus boundary patches.")
+      .def_property_readonly("dim", &Domain::dim)
+      .def_property_readonly("volume", &Domain::volume)
+      .def_property_readonly("num_patches", &Domain::num_patches)
+      .def_property_readonly("is_periodic", &Domain::is_periodic)
+      .def("patch_area", &Domain::patch_area, py::arg("patch"))
+      .def("patch_name", &Domain::patch_name, py::arg("patch"))
+      .def("patch_by_name", &Domain::patch_by_name, py::arg("name"), "patch id, or -1")
+      .def_property_readonly("patch_names", [](const Domain& d) {
+        std::vector<std::string> names;
+        for (int p = 0; p < d.num_patches(); ++p) names.push_back(d.patch_name(p));
+        return names;
+      })
+      .def("bounding_box", [](const Domain& d) {
+        const Aabb b = d.bounding_box();
+        return py::make_tuple(Vec3(b.lo), Vec3(b.hi));
+      })
+      .def("signed_distance", [](const Domain& d, const DoubleArray& x) {
+        return per_point(x, [&](const Vec3& p) { return d.signed_distance(p); });
+      }, py::arg("points"), "< 0 inside; a float for one point, else an array")
+      .def("closest_point", [](const Domain& d, const DoubleArray& x) {
+        return per_point(x, [&](const Vec3& p) { return d.closest_point(p); });
+      }, py::arg("points"))
+      .def("patch_id", [](const Domain& d, const DoubleArray& x) {
+        return per_point(x, [&](const Vec3& p) { return d.patch_id(p); });
+      }, py::arg("points"), "the patch of the closest boundary point")
+      .def("contains", [](const Domain& d, const DoubleArray& x) {
+        return per_point(x, [&](const Vec3& p) { return d.contains(p); });
+      }, py::arg("points"));
+  m.def("make_ball", [](int dim, const Vec3& c, double r) { return mutable_domain(make_ball(dim, c, r)); },
+        py::arg("dim"), py::arg("center"), py::arg("radius"), "Ball (d = 3) or disc (d = 2), one patch.");
+  m.def("make_box", [](int dim, const Vec3& lo, const Vec3& hi) { return mutable_domain(make_box(dim, lo, hi)); },
+        py::arg("dim"), py::arg("lo"), py::arg("hi"), "Box, one patch per face (x-, x+, y-, ...).");
+  m.def("make_cylinder", [](const Vec3& a, const Vec3& b, double r) { return mutable_domain(make_cylinder(a, b, r)); },
+        py::arg("end_a"), py::arg("end_b"), py::arg("radius"), "Capped cylinder (3-D): mantle and two caps.");
+  m.def("make_periodic_box",
+        [](int dim, const Vec3& lo, const Vec3& hi) { return mutable_domain(make_periodic_box(dim, lo, hi)); },
+        py::arg("dim"), py::arg("lo"), py::arg("hi"));
+  m.def("make_union", [](const PyDomain& a, const PyDomain& b) { return mutable_domain(make_union(a, b)); });
+  m.def("make_difference", [](const PyDomain& a, const PyDomain& b) { return mutable_domain(make_difference(a, b)); },
+        "a minus b (e.g. an obstacle)");
+
+  // ---- boundary data
+  Options<ConstantBoundaryData>(m, "BoundaryData",
+                                "Constant data on one patch over [t_start, t_end): Dirichlet g or Neumann outward flux f.")
+      .field("patch", &ConstantBoundaryData::patch, "patch id (Domain.patch_by_name)")
+      .field("kind", &ConstantBoundaryData::kind, "PatchKind or 'dirichlet' | 'neumann' | 'no_flux'")
+      .field("value", &ConstantBoundaryData::value, "g or f")
+      .field("t_start", &ConstantBoundaryData::t_start, "switched on at")
+      .field("t_end", &ConstantBoundaryData::t_end, "switched off at")
+      .done();
+
+  // ---- options
+  Options<NeighborOptions>(m, "NeighborOptions", "Cut-off tolerance and skin of the neighbour list.")
+      .field("kernel_tolerance", &NeighborOptions::kernel_tolerance, "kernel value at the cut-off, relative to its peak")
+      .field("skin", &NeighborOptions::skin, "absolute skin; < 0: skin_factor x smallest width")
+      .field("skin_factor", &NeighborOptions::skin_factor, "skin in smallest widths when skin < 0")
+      .validated()
+      .done();
+  Options<MinimizerOptions>(m, "MinimizerOptions", "Backend and caps of the minimiser.")
+      .field("backend", &MinimizerOptions::backend, "ceres | nlopt")
+      .field("algorithm", &MinimizerOptions::algorithm, "lbfgs, bfgs, nonlinear_cg (Ceres); tnewton, var2, mma (NLopt)")
+      .field("gradient_tolerance", &MinimizerOptions::gradient_tolerance, "set per step by the stepper")
+      .field("relative_gradient_tolerance", &MinimizerOptions::relative_gradient_tolerance, "0: off")
+      .field("gradient_tolerance_floor", &MinimizerOptions::gradient_tolerance_floor, "floor of the relative rule")
+      .field("function_tolerance", &MinimizerOptions::function_tolerance, "0: off")
+      .field("max_iterations", &MinimizerOptions::max_iterations, "iteration cap")
+      .field("max_evaluations", &MinimizerOptions::max_evaluations, "evaluation cap")
+      .field("lbfgs_memory", &MinimizerOptions::lbfgs_memory, "L-BFGS history")
+      .field("approximate_eigenvalue_scaling", &MinimizerOptions::approximate_eigenvalue_scaling, "Ceres only")
+      .validated()
+      .done();
+  Options<FunctionalOptions>(m, "FunctionalOptions", "dt, kappa, rho_ref, width metric of the functional (28).")
+      .field("dt", &FunctionalOptions::dt, "time step (> 0)")
+      .field("kappa", &FunctionalOptions::kappa, "diffusivity (> 0)")
+      .field("rho_ref", &FunctionalOptions::rho_ref, "reference density (> 0)")
+      .field("width_metric", &FunctionalOptions::width_metric, "as_printed (c_w = 1) | exact (d/2)")
+      .field("optimise_widths", &FunctionalOptions::optimise_widths, "gradient in the widths as well")
+      .field("neighbor", &FunctionalOptions::neighbor, "NeighborOptions")
+      .validated()
+      .done();
+  Options<ImplicitOptions>(m, "ImplicitOptions", "The implicit variational step (28).")
+      .field("minimizer", &ImplicitOptions::minimizer, "MinimizerOptions")
+      .field("displacement_tolerance", &ImplicitOptions::displacement_tolerance, "stop at max |dt/m dF/dx| <= this x s")
+      .field("relative_tolerance", &ImplicitOptions::relative_tolerance, "... or this x the first gradient step")
+      .field("width_mode", &ImplicitOptions::width_mode, "fixed | per_particle")
+      .field("width_metric", &ImplicitOptions::width_metric, "as_printed | exact")
+      .field("kappa", &ImplicitOptions::kappa, "diffusivity")
+      .field("rho_ref", &ImplicitOptions::rho_ref, "reference density")
+      .field("neighbor", &ImplicitOptions::neighbor, "NeighborOptions")
+      .field("max_halvings", &ImplicitOptions::max_halvings, "dt/2 retries after a failed solve")
+      .field("energy_tolerance", &ImplicitOptions::energy_tolerance, "allowed rise of F")
+      .field("sort_particles", &ImplicitOptions::sort_particles, "reorder spatially each step (ids kept)")
+      .field("time_scheme", &ImplicitOptions::time_scheme, "euler | bdf2")
+      .field("predictor", &ImplicitOptions::predictor, "none | extrapolate | damped")
+      .field("error_smoothing", &ImplicitOptions::error_smoothing, "error estimate smoothing (widths)")
+      .validated()
+      .done();
+  Options<ExplicitOptions>(m, "ExplicitOptions", "The explicit baselines.")
+      .field("scheme", &ExplicitOptions::scheme, "euler27 | rk4 | euler_exact")
+      .field("kappa", &ExplicitOptions::kappa, "diffusivity")
+      .field("rho_ref", &ExplicitOptions::rho_ref, "reference density")
+      .field("neighbor", &ExplicitOptions::neighbor, "NeighborOptions")
+      .field("sort_particles", &ExplicitOptions::sort_particles, "reorder spatially each step")
+      .validated()
+      .done();
+  Options<TimeStepControlOptions>(m, "TimeStepControlOptions", "Adaptive steps.")
+      .field("tolerance", &TimeStepControlOptions::tolerance, "largest error estimate per step (widths)")
+      .field("safety", &TimeStepControlOptions::safety, "safety factor")
+      .field("max_growth", &TimeStepControlOptions::max_growth, "largest dt_new / dt")
+      .field("max_shrink", &TimeStepControlOptions::max_shrink, "smallest dt_new / dt")
+      .field("dt_min", &TimeStepControlOptions::dt_min, "smallest step")
+      .field("dt_max", &TimeStepControlOptions::dt_max, "largest step")
+      .validated()
+      .done();
+  Options<ProjectionOptions>(m, "ProjectionOptions", "The boundary-layer projection of Sec. 4.2.")
+      .field("layer_b", &ProjectionOptions::layer_b, "half-thickness b")
+      .field("dirichlet_target", &ProjectionOptions::dirichlet_target, "cell_integral | paper_eq34")
+      .field("quadrature_samples", &ProjectionOptions::quadrature_samples, "Monte Carlo points")
+      .field("neumann_outflow", &ProjectionOptions::neumann_outflow, "layer | nearest_particles")
+      .field("nearest_surface_points", &ProjectionOptions::nearest_surface_points, "points on A_l")
+      .field("dirichlet_mode", &ProjectionOptions::dirichlet_mode, "layer | reservoir")
+      .field("reservoir_thickness", &ProjectionOptions::reservoir_thickness, "band width w")
+      .field("reservoir_sublayers", &ProjectionOptions::reservoir_sublayers, "0: about one spacing each")
+      .field("reservoir_volume_samples", &ProjectionOptions::reservoir_volume_samples, "Monte Carlo points")
+      .field("reservoir_profile", &ProjectionOptions::reservoir_profile, "uniform | odd")
+      .field("absorb_exterior", &ProjectionOptions::absorb_exterior, "layer: remove stranded exterior particles")
+      .validated()
+      .done();
+  Options<SimulationOptions>(m, "SimulationOptions", "Algorithm 1 (otfp.Simulation).")
+      .field("particle_mass", &SimulationOptions::particle_mass, "m_p of inserted particles (> 0)")
+      .field("width_s", &SimulationOptions::width_s, "s of inserted particles (> 0)")
+      .field("bounded", &SimulationOptions::bounded, "False: free space")
+      .field("barrier_stiffness", &SimulationOptions::barrier_stiffness, "C of (40)")
+      .field("no_flux", &SimulationOptions::no_flux, "images | barrier")
+      .field("projection", &SimulationOptions::projection, "ProjectionOptions")
+      .field("fill_reservoir_at_start", &SimulationOptions::fill_reservoir_at_start, "reservoir: fill at step 0")
+      .field("stepper", &SimulationOptions::stepper, "implicit | explicit")
+      .field("implicit", &SimulationOptions::implicit, "ImplicitOptions")
+      .field("explicit_options", &SimulationOptions::explicit_options, "ExplicitOptions")
+      .field("velocity", &SimulationOptions::velocity, "uniform advection velocity")
+      .field("source_rate", &SimulationOptions::source_rate, "volumetric source rate")
+      .field("time_control", &SimulationOptions::time_control, "TimeStepControlOptions")
+      .field("max_error_rejections", &SimulationOptions::max_error_rejections, "adaptive tries per step")
+      .field("seed", &SimulationOptions::seed, "random numbers")
+      .validated()
+      .done();
+  Options<FillOptions>(m, "FillOptions", "Initial particles: uniform, lattice, Gaussian or cosine.")
+      .field("shape", &FillOptions::shape, "uniform | gaussian | cosine")
+      .field("count", &FillOptions::count, "particles")
+      .field("width_s", &FillOptions::width_s, "s of every particle")
+      .field("mass", &FillOptions::mass, "m_p of every particle")
+      .field("lattice", &FillOptions::lattice, "cell centres of a lattice in [lo, hi]")
+      .field("lattice_counts", &FillOptions::lattice_counts, "points per axis")
+      .field("lo", &FillOptions::lo, "box of the lattice / cosine")
+      .field("hi", &FillOptions::hi, "box of the lattice / cosine")
+      .field("center", &FillOptions::center, "Gaussian centre")
+      .field("sigma", &FillOptions::sigma, "Gaussian standard deviation")
+      .field("amplitude", &FillOptions::amplitude, "cosine amplitude a")
+      .field("wavenumber", &FillOptions::wavenumber, "cosine k")
+      .validated()
+      .done();
+  m.def("fill_particles",
+        [](const PyDomain& domain, const FillOptions& o, std::uint64_t seed) {
+          Rng rng(seed);
+          return fill_particles(*domain, o, rng);
+        },
+        py::arg("domain"), py::arg("options"), py::arg("seed") = 1);
+
+  // ---- summaries
+  py::class_<FunctionalParts>(m, "FunctionalParts")
+      .def_readonly("transport", &FunctionalParts::transport)
+      .def_readonly("entropy", &FunctionalParts::entropy)
+      .def_readonly("barrier", &FunctionalParts::barrier)
+      .def_property_readonly("total", &FunctionalParts::total);
+  py::class_<StepSummary>(m, "StepSummary", "What every diffusive step reports.")
+      .def_readonly("accepted", &StepSummary::accepted)
+      .def_readonly("reason", &StepSummary::reason)
+      .def_readonly("message", &StepSummary::message)
+      .def_readonly("dt", &StepSummary::dt)
+      .def_readonly("substeps", &StepSummary::substeps)
+      .def_readonly("halvings", &StepSummary::halvings)
+      .def_readonly("rejected_solves", &StepSummary::rejected_solves)
+      .def_readonly("f_before", &StepSummary::f_before)
+      .def_readonly("f_after", &StepSummary::f_after)
+      .def_readonly("parts_before", &StepSummary::parts_before)
+      .def_readonly("parts_after", &StepSummary::parts_after)
+      .def_readonly("iterations", &StepSummary::iterations)
+      .def_readonly("evaluations", &StepSummary::evaluations)
+      .def_readonly("residual_displacement", &StepSummary::residual_displacement)
+      .def_readonly("list_builds", &StepSummary::list_builds)
+      .def_readonly("wall_seconds", &StepSummary::wall_seconds)
+      .def_readonly("solver_seconds", &StepSummary::solver_seconds)
+      .def_readonly("list_seconds", &StepSummary::list_seconds)
+      .def_readonly("gradient_tolerance", &StepSummary::gradient_tolerance)
+      .def_readonly("pair_evaluations", &StepSummary::pair_evaluations)
+      .def_readonly("inserted", &StepSummary::inserted)
+      .def_readonly("removed", &StepSummary::removed)
+      .def_readonly("error_estimate", &StepSummary::error_estimate)
+      .def_readonly("error_order", &StepSummary::error_order)
+      .def_readonly("error_rejected", &StepSummary::error_rejected)
+      .def("__repr__", [](const StepSummary& s) {
+        return "StepSummary(accepted=" + std::string(s.accepted ? "True" : "False") + ", reason=" +
+               to_string(s.reason) + ", dt=" + std::to_string(s.dt) + ", F " + std::to_string(s.f_before) + " -> " +
+               std::to_string(s.f_after) + ", evaluations=" + std::to_string(s.evaluations) + ")";
+      });
+  py::class_<SimulationStep>(m, "SimulationStep", "One step of Algorithm 1.")
+      .def_readonly("step", &SimulationStep::step)
+      .def_readonly("t_start", &SimulationStep::t_start)
+      .def_readonly("t_end", &SimulationStep::t_end)
+      .def_property_readonly("dt", &SimulationStep::dt)
+      .def_readonly("diffusion", &SimulationStep::diffusion)
+      .def_readonly("inserted", &SimulationStep::inserted)
+      .def_readonly("removed", &SimulationStep::removed)
+      .def_readonly("reflected", &SimulationStep::reflected)
+      .def_readonly("error_rejections", &SimulationStep::error_rejections)
+      .def_readonly("forced_at_dt_min", &SimulationStep::forced_at_dt_min)
+      .def_readonly("dt_next", &SimulationStep::dt_next)
+      .def_readonly("wall_seconds", &SimulationStep::wall_seconds)
+      .def("brief_report", &SimulationStep::brief_report)
+      .def("full_report", &SimulationStep::full_report)
+      .def("__repr__", &SimulationStep::brief_report);
+  py::class_<SimulationLedger>(m, "SimulationLedger", "n(t) = n(0) + inserted - removed, and the same for the mass.")
+      .def_readonly("initial_particles", &SimulationLedger::initial_particles)
+      .def_readonly("initial_mass", &SimulationLedger::initial_mass)
+      .def_readonly("inserted", &SimulationLedger::inserted)
+      .def_readonly("removed", &SimulationLedger::removed)
+      .def_readonly("mass_inserted", &SimulationLedger::mass_inserted)
+      .def_readonly("mass_removed", &SimulationLedger::mass_removed)
+      .def_readonly("source_inserted", &SimulationLedger::source_inserted)
+      .def_readonly("source_removed", &SimulationLedger::source_removed)
+      .def_readonly("reflected", &SimulationLedger::reflected)
+      .def("expected_particles", &SimulationLedger::expected_particles)
+      .def("expected_mass", &SimulationLedger::expected_mass);
+  py::class_<SimulationTotals>(m, "SimulationTotals")
+      .def_readonly("iterations", &SimulationTotals::iterations)
+      .def_readonly("evaluations", &SimulationTotals::evaluations)
+      .def_readonly("rejected_solves", &SimulationTotals::rejected_solves)
+      .def_readonly("halvings", &SimulationTotals::halvings)
+      .def_readonly("error_rejected_steps", &SimulationTotals::error_rejected_steps)
+      .def_readonly("steps_forced_at_dt_min", &SimulationTotals::steps_forced_at_dt_min)
+      .def_readonly("step_seconds", &SimulationTotals::step_seconds)
+      .def_readonly("solver_seconds", &SimulationTotals::solver_seconds);
+  py::class_<StateMeasures>(m, "StateMeasures", "(43)-(44) at one time.")
+      .def_readonly("n_particles", &StateMeasures::n_particles)
+      .def_readonly("n_inside", &StateMeasures::n_inside)
+      .def_readonly("n_buffer", &StateMeasures::n_buffer)
+      .def_readonly("n_outside", &StateMeasures::n_outside)
+      .def_readonly("mass_total", &StateMeasures::mass_total)
+      .def_readonly("mass_inside", &StateMeasures::mass_inside)
+      .def_readonly("mass_with_layer", &StateMeasures::mass_with_layer)
+      .def_readonly("polar_inertia", &StateMeasures::polar_inertia)
+      .def_readonly("polar_inertia_with_layer", &StateMeasures::polar_inertia_with_layer)
+      .def_readonly("polar_inertia_total", &StateMeasures::polar_inertia_total)
+      .def_readonly("mean_age", &StateMeasures::mean_age)
+      .def_readonly("max_age", &StateMeasures::max_age);
+
+  // ---- functional
+  py::class_<PyFunctional>(m, "Functional",
+                           "F = T + E + B of (28) for one step from a reference state; gradients in x and s.")
+      .def(py::init([](const PyDomain& domain, const FunctionalOptions& options, double barrier_stiffness,
+                       std::optional<int> dim) {
+             options.validate();
+             return std::make_unique<PyFunctional>(dim_of(domain, dim), options, domain, barrier_stiffness);
+           }),
+           py::arg("domain") = PyDomain{}, py::arg("options") = FunctionalOptions{}, py::arg("barrier_stiffness") = 0.0,
+           py::arg("dim") = py::none())
+      .def("set_reference", &PyFunctional::set_reference, py::arg("x_ref"), py::arg("s_ref"), py::arg("masses"),
+           "The state (x^k, s^k) of the step and the masses.")
+      .def("evaluate", &PyFunctional::evaluate, py::arg("x"), py::arg("s"), py::arg("all_pairs") = false,
+           "dict: value, transport, entropy, barrier, gradient_x (n, 3), gradient_s (n,) or None, density (n,)");
+
+  // ---- steppers
+  py::class_<ImplicitStepper>(m, "ImplicitStepper", "Minimises (28) each step (Ceres or NLopt).")
+      .def(py::init([](const PyDomain& domain, const ImplicitOptions& options, double barrier_stiffness,
+                       std::optional<int> dim) {
+             options.validate();
+             return std::make_unique<ImplicitStepper>(dim_of(domain, dim), options, make_barrier(domain, barrier_stiffness),
+                                                      periodicity_of(domain, dim_of(domain, dim)));
+           }),
+           py::arg("domain") = PyDomain{}, py::arg("options") = ImplicitOptions{}, py::arg("barrier_stiffness") = 0.0,
+           py::arg("dim") = py::none())
+      .def("step",
+           [](ImplicitStepper& st, ParticleSet& ps, double dt, double max_error) {
+             return on_copy(ps, [&](ParticleSet& w) { return st.step(w, dt, max_error); });
+           },
+           py::arg("particles"), py::arg("dt"), py::arg("max_error") = std::numeric_limits<double>::infinity(),
+           "One step of length dt, in place (the GIL is released). A failed step leaves the particles as they were.")
+      .def("reset_history", &ImplicitStepper::reset_history)
+      .def_property_readonly("options", &ImplicitStepper::options);
+  py::class_<ExplicitStepper>(m, "ExplicitStepper", "Algorithm 1 line 4 (sign corrected), RK4, or Euler on dF/dx.")
+      .def(py::init([](const PyDomain& domain, const ExplicitOptions& options, double barrier_stiffness,
+                       std::optional<int> dim) {
+             options.validate();
+             return std::make_unique<ExplicitStepper>(dim_of(domain, dim), options, make_barrier(domain, barrier_stiffness),
+                                                      periodicity_of(domain, dim_of(domain, dim)));
+           }),
+           py::arg("domain") = PyDomain{}, py::arg("options") = ExplicitOptions{}, py::arg("barrier_stiffness") = 0.0,
+           py::arg("dim") = py::none())
+      .def("step",
+           [](ExplicitStepper& st, ParticleSet& ps, double dt) {
+             return on_copy(ps, [&](ParticleSet& w) { return st.step(w, dt); });
+           },
+           py::arg("particles"), py::arg("dt"), "One explicit step, in place (the GIL is released).");
+
+  // ---- Simulation
+  py::class_<Simulation>(m, "Simulation", "Algorithm 1: advection, source, diffusion, projection, ledger.")
+      .def(py::init([](const PyDomain& domain, std::vector<ConstantBoundaryData> boundary,
+                       const SimulationOptions& options) {
+             if (!domain) throw InvalidArgument("domain: required");
+             return std::make_unique<Simulation>(domain, std::move(boundary), options);
+           }),
+           py::arg("domain"), py::arg("boundary"), py::arg("options"))
+      .def("start", [](Simulation& s, const ParticleSet& ps, double t0) { s.start(ps, t0); }, py::arg("particles"),
+           py::arg("t0") = 0.0, "The state at t0 (a copy of the particles); random numbers from options.seed.")
+      .def("advance", &Simulation::advance, py::arg("dt"), py::call_guard<py::gil_scoped_release>())
+      .def("advance_to", &Simulation::advance_to, py::arg("t_end"), py::call_guard<py::gil_scoped_release>())
+      .def("advance_adaptive", &Simulation::advance_adaptive, py::arg("t_limit"),
+           py::call_guard<py::gil_scoped_release>())
+      .def("run_until",
+           [](Simulation& s, double t_end, double dt, py::object observer, bool adaptive) {
+             Simulation::Observer obs;
+             if (!observer.is_none())
+               obs = [&observer](const Simulation& sim, const SimulationStep& step) {
+                 py::gil_scoped_acquire acquire;
+                 py::object r = observer(py::cast(sim, py::return_value_policy::reference), py::cast(step));
+                 if (!r.is_none() && !r.cast<bool>()) throw StopRequested{};
+               };
+             try {
+               py::gil_scoped_release release;
+               s.run_until(t_end, dt, obs, adaptive);
+             } catch (const StopRequested&) {
+               return false;
+             }
+             return true;
+           },
+           py::arg("t_end"), py::arg("dt"), py::arg("observer") = py::none(), py::arg("adaptive") = false,
+           "Steps to t_end (equal steps of at most dt, or adaptive). observer(sim, step) sees every step; "
+           "returning False stops after that step. Returns True when t_end was reached.")
+      .def_property_readonly("time", &Simulation::time)
+      .def_property_readonly("step_count", &Simulation::step_count)
+      .def_property_readonly("started", &Simulation::started)
+      .def_property_readonly("next_dt", &Simulation::next_dt)
+      .def("set_next_dt", &Simulation::set_next_dt, py::arg("dt"))
+      .def_property_readonly("particles", [](const Simulation& s) { return ParticleSet(s.particles()); },
+                             "A copy of the particles (the simulation's own change size every step).")
+      .def_property_readonly("domain", [](const Simulation& s) { return mutable_domain(s.domain_ptr()); })
+      .def_property_readonly("options", &Simulation::options)
+      .def_property_readonly("ledger", &Simulation::ledger)
+      .def_property_readonly("totals", &Simulation::totals)
+      .def_property_readonly("initial_step", &Simulation::initial_step)
+      .def("full_report", &Simulation::full_report)
+      .def("measure",
+           [](const Simulation& s, const Vec3& center) {
+             std::vector<std::int32_t> region;
+             const StateMeasures ms = s.measure(center, &region);
+             return py::make_tuple(ms, py::array_t<std::int32_t>(static_cast<py::ssize_t>(region.size()), region.data()));
+           },
+           py::arg("center"), "(StateMeasures, region per particle: 0 inside, 1 buffer, 2 elsewhere)")
+      .def("save_checkpoint", &Simulation::save_checkpoint, py::arg("path"), py::arg("extra") = std::string())
+      .def("load_checkpoint",
+           [](Simulation& s, const std::filesystem::path& path) {
+             std::string extra;
+             s.load_checkpoint(path, &extra);
+             return extra;
+           },
+           py::arg("path"), "Restores the state (bit for bit); returns the caller's extra string.");
+
+  // ---- diagnostics and references
+  m.def("blob_second_moment", &blob_second_moment, py::arg("particles"), py::arg("center"));
+  m.def("cosine_mode_amplitude", &cosine_mode_amplitude, py::arg("particles"), py::arg("wavenumber"), py::arg("x0"));
+  py::module_ an = m.def_submodule("analytic", "Analytic references (Crank, free space, cosine mode).");
+  an.def("crank_sphere_uptake", py::vectorize(&analytic::crank_sphere_uptake), py::arg("kappa_t_over_R2"));
+  an.def("crank_slab_uptake", py::vectorize(&analytic::crank_slab_uptake), py::arg("kappa_t_over_L2"));
+  an.def("crank_sphere_polar_inertia", py::vectorize(&analytic::crank_sphere_polar_inertia), py::arg("kappa_t_over_R2"));
+  an.def("crank_slab_density", py::vectorize(&analytic::crank_slab_density), py::arg("kappa_t_over_L2"),
+         py::arg("depth_over_L"));
+  an.def("free_space_variance_growth", py::vectorize(&analytic::free_space_variance_growth), py::arg("kappa"),
+         py::arg("t"));
+  an.def("cosine_mode_decay", py::vectorize(&analytic::cosine_mode_decay), py::arg("kappa"), py::arg("wavenumber"),
+         py::arg("t"));
+  Options<analytic::SlabBox>(an, "SlabBox", "The box of crank_slab_polar_inertia.")
+      .field("dim", &analytic::SlabBox::dim, "1, 2 or 3")
+      .field("lo", &analytic::SlabBox::lo, "box corner")
+      .field("hi", &analytic::SlabBox::hi, "box corner")
+      .field("axis", &analytic::SlabBox::axis, "normal of the held face")
+      .field("held_at_hi", &analytic::SlabBox::held_at_hi, "the held face is x = hi")
+      .field("length", &analytic::SlabBox::length, "L")
+      .field("center", &analytic::SlabBox::center, "centre of the polar inertia")
+      .field("M_inf", &analytic::SlabBox::M_inf, "g |Omega|")
+      .done();
+  an.def("crank_slab_polar_inertia",
+         [](double tau, const analytic::SlabBox& slab, int intervals) {
+           return analytic::crank_slab_polar_inertia(tau, slab, intervals);
+         },
+         py::arg("kappa_t_over_L2"), py::arg("slab"), py::arg("intervals") = 512);
+  an.def("time_discrete_rate",
+         [](py::object scheme, double lambda, double dt) {
+           const std::string name = py::str(scheme);
+           if (py::isinstance<ExplicitScheme>(scheme) || name == "euler27" || name == "rk4" || name == "euler_exact")
+             return analytic::time_discrete_rate(scheme.cast<ExplicitScheme>(), lambda, dt);
+           return analytic::time_discrete_rate(scheme.cast<TimeScheme>(), lambda, dt);
+         },
+         py::arg("scheme"), py::arg("lam"), py::arg("dt"),
+         "Decay rate of exp(-lam t) under the time scheme alone (TimeScheme or ExplicitScheme, or its name).");
+
+  // ---- the command-line tool's configurations
+  py::class_<app::ConfiguredRun>(m, "ConfiguredRun", "A TOML configuration of `otfp run`, with its derived numbers.")
+      .def_property_readonly("description",
+                             [](const app::ConfiguredRun& r) { return json_to_dict(r.describe()); },
+                             "{'config': the resolved keys, 'derived': dt, n_steps, M_inf, ...}")
+      .def_property_readonly("dt", [](const app::ConfiguredRun& r) { return r.derived().dt; })
+      .def_property_readonly("n_steps", [](const app::ConfiguredRun& r) { return r.derived().n_steps; })
+      .def_property_readonly("t_end", [](const app::ConfiguredRun& r) { return r.config().run.t_end; })
+      .def_property_readonly("M_inf", [](const app::ConfiguredRun& r) { return r.derived().M_inf; })
+      .def_property_readonly("center", [](const app::ConfiguredRun& r) { return r.derived().center; })
+      .def_property_readonly("domain", [](const app::ConfiguredRun& r) { return mutable_domain(r.domain_ptr()); })
+      .def("make_simulation", [](const app::ConfiguredRun& r) { return r.make_simulation(); },
+           "A started Simulation as `otfp run` builds it: advance_to(k * dt) reproduces the CLI's steps bit for bit.")
+      .def("run",
+           [](app::ConfiguredRun& r, const std::filesystem::path& out_dir, bool progress) {
+             app::RunOptions o;
+             o.out_dir = out_dir;
+             o.progress = progress;
+             o.keep_series = false;
+             app::RunResult res;
+             {
+               py::gil_scoped_release release;
+               res = r.run(o);
+             }
+             py::dict d;
+             d["status"] = res.status;
+             d["exit_code"] = res.exit_code;
+             d["error"] = res.error;
+             d["summary"] = json_to_dict(res.summary);
+             return d;
+           },
+           py::arg("out_dir") = std::filesystem::path(), py::arg("progress") = false,
+           "The whole run as `otfp run CONFIG --out out_dir` (nothing written when out_dir is empty).");
+  m.def("load_config",
+        [](const std::filesystem::path& path, const std::vector<std::string>& overrides) {
+          return std::make_unique<app::ConfiguredRun>(app::parse_config_file(path, overrides));
+        },
+        py::arg("path"), py::arg("overrides") = std::vector<std::string>{},
+        "Reads a TOML configuration (overrides: 'key=value' as --set) and derives (36)-(40); ConfigError names the key.");
+}

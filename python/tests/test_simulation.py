@@ -1,0 +1,141 @@
+"""otfp.Simulation from Python: the same steps as the C++ command-line tool
+bit for bit, the observer, checkpoints and bad input."""
+import subprocess
+
+import numpy as np
+import pytest
+
+import otfp
+
+OVERRIDES = ["particles.n_inf=150", "run.t_end=0.5", "run.dt_factor=1"]
+
+
+def rows_without_region(csv_text):
+    """particles_final.csv rows without the region column (particles_csv() writes 0 there)."""
+    lines = csv_text.strip().splitlines()
+    assert lines[0].split(",")[-1] == "region"
+    return [line.rsplit(",", 1)[0] for line in lines]
+
+
+@pytest.mark.parametrize("extra", [[], ["solver.stepper=explicit", "run.dt_factor=0.25"],
+                                   ["solver.time_scheme=bdf2", "solver.backend=nlopt"]])
+def test_steps_equal_the_command_line_tool_bit_for_bit(tmp_path, source_dir, otfp_cli, extra):
+    config = str(source_dir / "examples" / "sphere_dirichlet.toml")
+    overrides = OVERRIDES + extra + ["run.max_steps=3"]
+    cmd = [otfp_cli, "run", config, "--out", str(tmp_path / "cli")]
+    for o in overrides:
+        cmd += ["--set", o]
+    subprocess.run(cmd, check=True, capture_output=True)
+
+    run = otfp.load_config(config, overrides)
+    assert run.n_steps > 3  # max_steps stops the tool after step 3
+    sim = run.make_simulation()
+    for k in range(1, 4):  # the tool's fixed grid: t_k = k dt, the last step ends on t_end
+        sim.advance_to(run.t_end if k == run.n_steps else k * run.dt)
+    assert sim.step_count == 3
+    ours = rows_without_region(otfp.particles_csv(sim.particles))
+    theirs = rows_without_region((tmp_path / "cli" / "particles_final.csv").read_text())
+    assert len(ours) > 100
+    assert ours == theirs  # shortest round-trip decimal forms: equal strings are equal doubles
+
+
+def small_simulation():
+    domain = otfp.make_ball(3, [0, 0, 0], 1.0)
+    n = 120
+    opts = otfp.SimulationOptions(particle_mass=1.0 / n, width_s=0.12, barrier_stiffness=400.0,
+                                  projection=dict(layer_b=0.15), seed=11)
+    sim = otfp.Simulation(domain, [otfp.BoundaryData(patch=0, kind="dirichlet", value=1.0)], opts)
+    fill = otfp.fill_particles(domain, otfp.FillOptions(count=n // 4, width_s=0.12, mass=1.0 / n), seed=5)
+    sim.start(fill)
+    return sim
+
+
+def test_observer_sees_every_step_and_can_stop():
+    sim = small_simulation()
+    seen = []
+    assert sim.run_until(0.01, 0.0025, lambda s, step: seen.append((step.step, step.t_end, s.time)))
+    assert [k for k, _, _ in seen] == [1, 2, 3, 4]
+    assert all(t == ts for _, t, ts in seen)  # the observer runs after the step
+    assert seen[-1][1] == 0.01
+
+    def stop_after_two(s, step):
+        return step.step < 6
+
+    assert not sim.run_until(0.03, 0.0025, stop_after_two)
+    assert sim.step_count == 6
+    led = sim.ledger
+    assert len(sim.particles) == led.expected_particles()
+
+
+def test_observer_exception_propagates():
+    sim = small_simulation()
+
+    def boom(s, step):
+        raise KeyError("from the observer")
+
+    with pytest.raises(KeyError, match="from the observer"):
+        sim.run_until(0.01, 0.0025, boom)
+    assert sim.step_count == 1
+
+
+def test_checkpoint_round_trip(tmp_path):
+    a = small_simulation()
+    a.run_until(0.005, 0.0025)
+    path = tmp_path / "state.bin"
+    a.save_checkpoint(path, "mine")
+    a.run_until(0.01, 0.0025)
+    b = small_simulation()
+    b.run_until(0.0025, 0.0025)  # a different state, overwritten by the checkpoint
+    assert b.load_checkpoint(path) == "mine"
+    assert b.time == 0.005 and b.step_count == 2
+    b.run_until(0.01, 0.0025)
+    assert otfp.particles_csv(a.particles) == otfp.particles_csv(b.particles)
+    path.write_bytes(path.read_bytes()[:-3])  # damaged: refused, state kept
+    with pytest.raises(ValueError):
+        b.load_checkpoint(path)
+    assert b.step_count == 4
+
+
+def test_bad_options_raise_value_error_naming_the_field(source_dir):
+    with pytest.raises(ValueError, match="particle_mass"):
+        otfp.SimulationOptions(particle_mass=-1.0, width_s=0.1, barrier_stiffness=1.0)
+    with pytest.raises(ValueError, match="time_scheme"):
+        otfp.ImplicitOptions(time_scheme="bdf3")
+    with pytest.raises(ValueError, match="no field 'kapa'"):
+        otfp.ImplicitOptions(kapa=1.0)
+    with pytest.raises(ValueError, match="max_iterations"):
+        otfp.ImplicitOptions(minimizer=dict(max_iterations=0))
+    with pytest.raises(ValueError, match="kappa"):
+        otfp.ExplicitOptions(kappa=float("nan"))
+    domain = otfp.make_ball(3, [0, 0, 0], 1.0)
+    opts = otfp.SimulationOptions(particle_mass=0.01, width_s=0.1, barrier_stiffness=100.0)
+    with pytest.raises(ValueError, match="patch"):
+        otfp.Simulation(domain, [otfp.BoundaryData(patch=3, kind="dirichlet", value=1.0)], opts)
+    with pytest.raises(otfp.ConfigError, match="particles.n_inf"):
+        otfp.load_config(source_dir / "examples" / "sphere_dirichlet.toml", ["particles.n_inf=-5"])
+
+
+def test_step_failure_is_a_runtime_error_and_keeps_the_state():
+    sim = small_simulation()
+    sim.run_until(0.0025, 0.0025)
+    before = otfp.particles_csv(sim.particles)
+    with pytest.raises(ValueError):
+        sim.advance_to(0.001)  # before the current time
+    assert otfp.particles_csv(sim.particles) == before
+    assert issubclass(otfp.StepFailure, RuntimeError)
+
+
+def test_measure_and_references():
+    sim = small_simulation()
+    sim.run_until(0.01, 0.0025)
+    ms, region = sim.measure([0, 0, 0])
+    assert ms.n_particles == len(sim.particles) == len(region)
+    assert ms.n_inside == int(np.sum(region == 0))
+    ps = sim.particles
+    assert ms.mass_total == pytest.approx(ps.total_mass(), rel=1e-14)
+    inside = region == 0
+    j = np.sum(ps.masses[inside] * np.sum(ps.positions[inside] ** 2, axis=1))
+    assert ms.polar_inertia == pytest.approx(j, rel=1e-12)
+    # Crank's uptake, vectorised, equals the scalar calls.
+    tau = np.array([0.01, 0.1, 1.0])
+    assert list(otfp.analytic.crank_sphere_uptake(tau)) == [otfp.analytic.crank_sphere_uptake(t) for t in tau]
