@@ -5,7 +5,8 @@ pkgs=(build-essential cmake g++ pkg-config
       libeigen3-dev libceres-dev libnlopt-cxx-dev
       libgtest-dev libgmock-dev libbenchmark-dev
       libcli11-dev libtomlplusplus-dev libfmt-dev nlohmann-json3-dev
-      python3 python3-matplotlib python3-numpy)
+      python3 python3-matplotlib python3-numpy
+      pybind11-dev python3-dev python3-pytest)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -29,6 +29,14 @@ cmake --install build --prefix "$PWD/build/_install" >/dev/null
 cmake -S examples/consumer -B build/_consumer -DCMAKE_PREFIX_PATH="$PWD/build/_install" -DCMAKE_BUILD_TYPE=Release >/dev/null
 cmake --build build/_consumer -j "$jobs" >/dev/null
 ./build/_consumer/consumer
+if [ -f build/python/otfp/__init__.py ]; then
+  echo "== import otfp from the installed tree"
+  pydir=$(dirname "$(find build/_install -path '*/otfp/__init__.py' | head -n 1)")
+  PY=python3
+  [ -x /usr/bin/python3 ] && PY=/usr/bin/python3
+  PYTHONPATH="$PWD/$(dirname "$pydir")" "$PY" -c \
+    "import otfp, sys; b = otfp.make_ball(3, [0, 0, 0], 1.0); assert abs(b.volume - 4.18879020478639) < 1e-12; print('otfp', otfp.__version__, 'from', otfp.__file__)"
+fi
 
 if [ "$ci" = 1 ]; then
   echo "== Tests under AddressSanitizer + UndefinedBehaviorSanitizer"

@@ -70,7 +70,7 @@ std::size_t draw_without_replacement(std::vector<std::size_t>& pool, std::size_t
 
 }  // namespace
 
-void ProjectionOptions::validate() const {
+void ProjectionOptions::validate(bool require_reservoir_domain) const {
   require(std::isfinite(layer_b) && layer_b > 0.0, "boundary.layer_b", layer_b, "must be finite and > 0");
   require(quadrature_samples >= 1000, "boundary.quadrature_samples", quadrature_samples, "must be >= 1000");
   require(neumann_outflow == NeumannOutflow::Layer || neumann_outflow == NeumannOutflow::NearestParticles,
@@ -81,7 +81,7 @@ void ProjectionOptions::validate() const {
           "boundary.dirichlet_mode", static_cast<double>(static_cast<int>(dirichlet_mode)),
           "must be layer or reservoir");
   if (dirichlet_mode != DirichletMode::Reservoir) return;
-  require(reservoir_domain != nullptr, "boundary.reservoir_domain", "null",
+  require(reservoir_domain != nullptr || !require_reservoir_domain, "boundary.reservoir_domain", "null",
           "must be set when boundary.dirichlet_mode = reservoir (Omega extended outward by w)");
   require(std::isfinite(reservoir_thickness) && reservoir_thickness > 0.0, "boundary.reservoir_thickness",
           reservoir_thickness, "must be finite and > 0 when boundary.dirichlet_mode = reservoir");

@@ -83,7 +83,7 @@ void validate_own_fields(const SimulationOptions& o) {
 
 void SimulationOptions::validate() const {
   validate_own_fields(*this);
-  projection.validate();
+  projection.validate(/*require_reservoir_domain=*/false);  // the Simulation builds it
   if (stepper == StepperKind::Implicit)
     implicit.validate();
   else

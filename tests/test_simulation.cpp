@@ -231,3 +231,18 @@ TEST(Simulation, SetupErrorsNameTheirStage) {
   Simulation ok(make_ball(2, Vec3::Zero(), 1.0), {}, o);
   EXPECT_THROW(ok.advance(0.1), std::logic_error) << "no start()";
 }
+
+TEST(Simulation, ReservoirOptionsValidateWithoutTheBandDomain) {
+  // The Simulation builds the reservoir band itself, so its options must not
+  // ask the caller for one; a lone ProjectionOptions still does by default.
+  otfp::SimulationOptions o;
+  o.particle_mass = 0.01;
+  o.width_s = 0.1;
+  o.barrier_stiffness = 10.0;
+  o.projection.dirichlet_mode = otfp::DirichletMode::Reservoir;
+  o.projection.reservoir_thickness = 0.3;
+  EXPECT_NO_THROW(o.validate());
+  EXPECT_THROW(o.projection.validate(), otfp::InvalidArgument);
+  o.projection.reservoir_thickness = -1.0;
+  EXPECT_THROW(o.validate(), otfp::InvalidArgument);
+}

@@ -77,8 +77,9 @@ struct ProjectionOptions {
   ReservoirProfile reservoir_profile = ReservoirProfile::Uniform;  // Reservoir: g, or odd parity about g
   bool absorb_exterior = false;                           // Layer: remove particles outside Omega on Dirichlet patches
   // Throws InvalidArgument naming the field, the value and the rule. The
-  // reservoir fields are checked only with dirichlet_mode = Reservoir.
-  void validate() const;
+  // reservoir fields are checked only with dirichlet_mode = Reservoir;
+  // reservoir_domain only when asked (a Simulation builds its own).
+  void validate(bool require_reservoir_domain = true) const;
 };
 
 class BoundaryProjection {

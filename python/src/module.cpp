@@ -33,6 +33,7 @@
 #include "otfp/initial_fill.hpp"
 #include "otfp/neighbor_list.hpp"
 #include "otfp/particle_io.hpp"
+#include "otfp/parameters.hpp"
 #include "otfp/particles.hpp"
 #include "otfp/simulation.hpp"
 #include "otfp/time_step_control.hpp"
@@ -156,7 +157,11 @@ class Options {
     return *this;
   }
   Options& validated() {
-    cls_.def("validate", [](const T& o) { o.validate(); }, "Raises ValueError naming the offending field.");
+    return validated([](const T& o) { o.validate(); });
+  }
+  template <class F>
+  Options& validated(F check) {
+    cls_.def("validate", check, "Raises ValueError naming the offending field.");
     return *this;
   }
   void done() { cls_.attr("_fields") = fields_; }
@@ -573,7 +578,8 @@ PYBIND11_MODULE(_otfp, m) {
       .field("reservoir_volume_samples", &ProjectionOptions::reservoir_volume_samples, "Monte Carlo points")
       .field("reservoir_profile", &ProjectionOptions::reservoir_profile, "uniform | odd")
       .field("absorb_exterior", &ProjectionOptions::absorb_exterior, "layer: remove stranded exterior particles")
-      .validated()
+      // The reservoir band's domain is built by the Simulation, not given here.
+      .validated([](const ProjectionOptions& o) { o.validate(/*require_reservoir_domain=*/false); })
       .done();
   Options<SimulationOptions>(m, "SimulationOptions", "Algorithm 1 (otfp.Simulation).")
       .field("particle_mass", &SimulationOptions::particle_mass, "m_p of inserted particles (> 0)")
@@ -813,6 +819,28 @@ PYBIND11_MODULE(_otfp, m) {
              return extra;
            },
            py::arg("path"), "Restores the state (bit for bit); returns the caller's extra string.");
+
+  // ---- the papers' parameter rules (36)-(40)
+  py::class_<PaperParameters>(m, "PaperParameters", "(36)-(40): spacing, width, layer, explicit limit, barrier.")
+      .def_readonly("dr", &PaperParameters::dr)
+      .def_readonly("beta", &PaperParameters::beta)
+      .def_readonly("width_s", &PaperParameters::width_s)
+      .def_readonly("layer_b", &PaperParameters::layer_b)
+      .def_readonly("dt_explicit", &PaperParameters::dt_explicit)
+      .def_readonly("barrier_C", &PaperParameters::barrier_C)
+      .def("__repr__", [](const PaperParameters& p) {
+        return "PaperParameters(dr=" + std::to_string(p.dr) + ", width_s=" + std::to_string(p.width_s) +
+               ", layer_b=" + std::to_string(p.layer_b) + ", dt_explicit=" + std::to_string(p.dt_explicit) +
+               ", barrier_C=" + std::to_string(p.barrier_C) + ")";
+      });
+  m.def("paper_parameters",
+        [](double volume, std::size_t n, int dim, double length_L, double kappa, double beta_factor) {
+          return paper_parameters(volume, n, dim, length_L, kappa, beta_factor);
+        },
+        py::arg("volume"), py::arg("n"), py::arg("dim"), py::arg("length_L"), py::arg("kappa"),
+        py::arg("beta_factor") = 2.0, "The papers' rules for n particles in |Omega| = volume (cube spacing rule).");
+  m.def("cutoff_radius", &cutoff_radius, py::arg("width_s"), py::arg("kernel_tolerance"),
+        "Distance at which a blob's kernel falls to kernel_tolerance of its peak.");
 
   // ---- diagnostics and references
   m.def("blob_second_moment", &blob_second_moment, py::arg("particles"), py::arg("center"));
