@@ -1,6 +1,7 @@
 #include "otfp/boundary.hpp"
 
 #include <algorithm>
+#include <sstream>
 #include <cmath>
 #include <cstdint>
 #include <functional>
@@ -596,7 +597,9 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
       const double target = dirichlet_target_mass(i, t_new);
       const double pre = member_mass[i];
       if (target > pre) {
-        const auto n = static_cast<long>(std::floor((target - pre) / mp + kCountTolerance));
+        const double want = std::floor((target - pre) / mp + kCountTolerance);
+        require_particle_room(want, particles.size(), max_particles_, patch_label(i, t_new));
+        const auto n = static_cast<long>(want);
         particles.reserve(particles.size() + static_cast<std::size_t>(n));
         for (long k = 0; k < n; ++k) insert(LayerPart::Interior);
       } else if (pre > target) {
@@ -622,6 +625,9 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
       // docs/method_notes.md#neumann-carry: move whole particles and carry the remainder, instead
       // of dropping floor's fraction every step as (50) does.
       led.carry += inflow;
+      // Checked before the loop: a carry past 2^53 m_p would never decrease.
+      if (led.carry >= threshold)
+        require_particle_room(std::floor(led.carry / mp), particles.size(), max_particles_, patch_label(i, t_new));
       while (led.carry >= threshold) {
         insert(LayerPart::Whole);
         led.carry -= mp;
@@ -658,6 +664,14 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
   return call;
 }
 
+std::string BoundaryProjection::patch_label(std::size_t i, double t) const {
+  const PatchCondition& c = conditions_[i];
+  std::ostringstream os;
+  os << "the " << to_string(c.kind) << " patch " << c.patch << " ('" << domain_->patch_name(c.patch) << "') at t = "
+     << t;
+  return os.str();
+}
+
 void BoundaryProjection::project_reservoir(std::size_t i, std::vector<std::vector<std::size_t>>& sublayer_members,
                                            ParticleSet& particles, double t_new, Rng& rng, PatchLedger& call,
                                            std::vector<std::size_t>& to_remove) {
@@ -681,6 +695,7 @@ void BoundaryProjection::project_reservoir(std::size_t i, std::vector<std::vecto
     }
     const double v = x_j + r.carry[j];
     long target = 0;
+    require_particle_room(v, particles.size(), max_particles_, patch_label(i, t_new));
     if (v > 0.0) {
       target = static_cast<long>(std::floor(v + kCountTolerance));
       r.carry[j] = v - static_cast<double>(target);
@@ -706,6 +721,7 @@ void BoundaryProjection::project_reservoir(std::size_t i, std::vector<std::vecto
     }
   }
   if (total_missing == 0) return;
+  require_particle_room(static_cast<double>(total_missing), particles.size(), max_particles_, patch_label(i, t_new));
   // Missing particles: uniform in their sublayer, by rejection from the box
   // around the band; one loop fills every sublayer of the patch.
   const Domain& ext = *options_.reservoir_domain;

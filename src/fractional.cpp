@@ -24,7 +24,8 @@ void advect(ParticleSet& particles, const VelocityField& u, double t, double dt,
   }
 }
 
-SourceResult apply_source(ParticleSet& particles, const SourceField& s, double t, double dt, Rng& rng) {
+SourceResult apply_source(ParticleSet& particles, const SourceField& s, double t, double dt, Rng& rng,
+                          std::int64_t max_particles) {
   SourceResult result;
   const int dim = particles.dim();
   const std::size_t n0 = particles.size();
@@ -43,6 +44,7 @@ SourceResult apply_source(ParticleSet& particles, const SourceField& s, double t
       }
     } else {
       const double extra = g - 1.0;
+      require_particle_room(std::ceil(extra), particles.size(), max_particles, "the source at a particle");
       long copies = static_cast<long>(std::floor(extra));
       if (rng.uniform() < extra - std::floor(extra)) ++copies;
       const double spread = particles.widths()[p] / std::sqrt(2.0);

@@ -77,9 +77,17 @@ void validate_own_fields(const SimulationOptions& o) {
   require(velocity.allFinite(), "velocity", velocity.norm(), "must be finite");
   require(std::isfinite(source_rate), "source_rate", source_rate, "must be finite");
   require(max_error_rejections >= 1, "max_error_rejections", max_error_rejections, "must be >= 1");
+  require(o.max_particles >= 0 && o.max_particles <= kMaxParticleCount, "max_particles",
+          static_cast<double>(o.max_particles), "must be in [0, 2^53] (0: default_max_particles())");
   o.time_control.validate();
 }
 }  // namespace
+
+std::int64_t default_max_particles() {
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+  const double bytes = pages > 0 && page > 0 ? static_cast<double>(pages) * static_cast<double>(page) : 4e9;
+  return std::max<std::int64_t>(1000, static_cast<std::int64_t>(0.5 * bytes / kBytesPerParticle));
+}
 
 void SimulationOptions::validate() const {
   validate_own_fields(*this);
@@ -161,6 +169,7 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
   try {
     po.validate();
     projection_ = std::make_unique<BoundaryProjection>(domain_, std::move(conditions), po, o.particle_mass, o.width_s);
+    projection_->set_max_particles(max_particles());
   } catch (const InvalidArgument& e) {
     // The odd profile mirrors the band inside Omega: a band deeper than the domain has no mirror.
     if (reservoir_domain_ && std::string(e.what()).find("mirror image") != std::string::npos)
@@ -259,6 +268,9 @@ void Simulation::start(ParticleSet particles, Rng rng, double t0) {
   require(particles.dim() == domain_->dim(), "particles dim", particles.dim(),
           "must equal the domain's dim " + std::to_string(domain_->dim()));
   require(std::isfinite(t0), "t0", t0, "must be finite");
+  const std::int64_t cap = max_particles();
+  require(static_cast<std::int64_t>(particles.size()) <= cap, "particles", static_cast<double>(particles.size()),
+          "must be at most max_particles = " + std::to_string(cap));
   particles_ = std::move(particles);
   rng_ = rng;
   time_ = t0;
@@ -320,7 +332,8 @@ SimulationStep Simulation::take_step(double t0, double t1, double max_error, Und
   }
   // Line 3: source.
   if (s_rate != 0.0) {
-    const SourceResult sr = apply_source(particles_, [s_rate](const Vec3&, double) { return s_rate; }, t0, h, rng_);
+    const SourceResult sr =
+        apply_source(particles_, [s_rate](const Vec3&, double) { return s_rate; }, t0, h, rng_, max_particles());
     for (Vec3& x : particles_.positions()) x = domain_->wrap(x);
     ledger_.source_inserted += sr.inserted;
     ledger_.source_removed += sr.removed;
@@ -440,9 +453,59 @@ void Simulation::require_started(const char* what) const {
   if (!started_) throw std::logic_error(std::string("Simulation::") + what + ": call start() or load_checkpoint() first");
 }
 
+struct Simulation::Saved {
+  ParticleSet particles;
+  Rng rng;
+  SimulationLedger ledger;
+  SimulationTotals totals;
+  BoundaryProjection::State projection;
+  ImplicitStepper::HistoryState history;
+  double dt_next = 0.0;
+};
+
+Simulation::Saved Simulation::save_state() const {
+  Saved s{particles_, rng_, ledger_, totals_, projection_->state(), {}, dt_next_};
+  if (implicit_) s.history = implicit_->history_state();
+  return s;
+}
+
+void Simulation::restore_state(Saved&& s) {
+  particles_ = std::move(s.particles);
+  rng_ = s.rng;
+  ledger_ = s.ledger;
+  totals_ = s.totals;
+  projection_->restore(s.projection);
+  if (implicit_) implicit_->restore_history(s.history);
+  dt_next_ = s.dt_next;
+}
+
+// Runs one step; whatever fails inside it (the solve, the error test, a
+// resource limit in the source or the projection, the ledger) puts back the
+// state the step started from and reaches the caller as a StepFailure (bad
+// data, e.g. a non-finite flux, stays an InvalidArgument).
+SimulationStep Simulation::guarded(const std::function<SimulationStep()>& body) {
+  Saved pre = save_state();
+  try {
+    return body();
+  } catch (const StepFailure&) {
+    restore_state(std::move(pre));
+    throw;
+  } catch (const InvalidArgument&) {
+    restore_state(std::move(pre));
+    throw;
+  } catch (const std::exception& e) {
+    restore_state(std::move(pre));
+    throw StepFailure(format("step {} (t = {}): {}", step_ + 1, time_, e.what()));
+  }
+}
+
 SimulationStep Simulation::advance_to(double t1) {
   require_started("advance_to");
   require(std::isfinite(t1) && t1 > time_, "step end t", t1, format("must be finite and > the current time {}", time_));
+  return guarded([&] { return advance_to_impl(t1); });
+}
+
+SimulationStep Simulation::advance_to_impl(double t1) {
   const auto wall0 = Clock::now();
   Undo undo;
   SimulationStep s = take_step(time_, t1, std::numeric_limits<double>::infinity(), &undo);
@@ -463,6 +526,10 @@ SimulationStep Simulation::advance_adaptive(double t_limit) {
           format("must be finite and > the current time {}", time_));
   if (!implicit_) throw InvalidArgument("stepper = \"explicit\": adaptive steps need the implicit stepper's error estimate");
   require(dt_next_ > 0.0, "next dt", dt_next_, "must be set (set_next_dt) before the first adaptive step");
+  return guarded([&] { return advance_adaptive_impl(t_limit); });
+}
+
+SimulationStep Simulation::advance_adaptive_impl(double t_limit) {
   const auto wall0 = Clock::now();
   const TimeStepController controller(options_.time_control);
   // The last step ends on t_limit exactly; one a little longer than proposed

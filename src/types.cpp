@@ -1,5 +1,6 @@
 #include "otfp/types.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -26,6 +27,15 @@ void require(bool ok, const std::string& field, double value, const std::string&
 }
 void require(bool ok, const std::string& field, const std::string& value, const std::string& rule) {
   if (!ok) throw InvalidArgument(field + " = '" + value + "': " + rule);
+}
+
+void require_particle_room(double count, std::size_t current, std::int64_t limit, const std::string& what) {
+  const std::int64_t cap = limit > 0 ? std::min(limit, kMaxParticleCount) : kMaxParticleCount;
+  const double room = static_cast<double>(cap) - static_cast<double>(current);
+  if (count <= room) return;  // false for NaN: refused below
+  throw ResourceLimitExceeded(what + " would add " + format_double(count) + " particles to " + std::to_string(current) +
+                              ": more than the limit of " + std::to_string(cap) + " particles" +
+                              (limit > 0 ? " (max_particles)" : " (2^53, past which counts are inexact)"));
 }
 
 Rng::Rng(std::uint64_t seed) {

@@ -662,3 +662,47 @@ TEST(Cli, BinaryExitCodes) {
   EXPECT_EQ(summary["final"]["step"].get<long>() + 2, static_cast<long>(rows.size()));
   fs::remove_all(dir);
 }
+
+// Boundary data that would create particles without end: refused before any
+// work when the papers' count n_inf is too large (exit 2), otherwise the
+// step that would exceed run.max_particles fails the run (exit 1, status
+// "failed", one line naming the patch and the count) with complete files.
+TEST(Cli, ResourceLimitsStopRunawayParticleCreation) {
+  const fs::path dir = fresh_dir("limits");
+  std::string err;
+  auto ex = [](const char* name) { return (kExamples / name).string(); };
+  EXPECT_EQ(run_binary("run " + ex("sphere_dirichlet.toml") + " --quiet --out " + dir.string() +
+                           " --set particles.n_inf=1000000000",
+                       err),
+            2);
+  EXPECT_EQ(err.rfind("otfp: error: particles.n_inf = 1000000000: must be at most", 0), 0u) << err;
+  EXPECT_FALSE(fs::exists(dir / "series.csv"));
+
+  struct Case {
+    const char* example;
+    std::string set, patch;
+  };
+  const std::vector<Case> cases = {
+      {"sphere_injection.toml", "boundary.0.value=-1e12", "neumann patch"},  // an inflow of 1e12 per unit area
+      {"sphere_dirichlet.toml", "boundary.0.value=1e300", "dirichlet patch 0 ('surface')"},  // 1e300 / m_p
+      {"sphere_dirichlet.toml", "run.max_particles=2000", "dirichlet patch 0 ('surface')"},   // the band needs more
+  };
+  for (const Case& c : cases) {
+    fs::remove_all(dir);
+    EXPECT_EQ(run_binary("run " + ex(c.example) + " --quiet --out " + dir.string() + " --set " + c.set +
+                             " --set run.max_steps=3",
+                         err),
+              1)
+        << c.set;
+    EXPECT_NE(err.find(c.patch), std::string::npos) << err;
+    EXPECT_NE(err.find("more than the limit of"), std::string::npos) << err;
+    EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+    const std::string summary = read_text(dir / "summary.json");
+    EXPECT_NE(summary.find("\"status\": \"failed\""), std::string::npos) << c.set;
+    const std::string series = read_text(dir / "series.csv");
+    ASSERT_FALSE(series.empty());
+    EXPECT_EQ(series.back(), '\n');  // whole rows only
+    EXPECT_EQ(series.find("nan"), std::string::npos);
+  }
+  fs::remove_all(dir);
+}

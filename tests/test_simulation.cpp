@@ -246,3 +246,98 @@ TEST(Simulation, ReservoirOptionsValidateWithoutTheBandDomain) {
   o.projection.reservoir_thickness = -1.0;
   EXPECT_THROW(o.validate(), otfp::InvalidArgument);
 }
+
+namespace {
+// A disc whose Dirichlet data (papers' layer) is g; data that ask for more
+// particles than allowed must fail the step, not exhaust memory.
+std::unique_ptr<Simulation> disc_with_data(const Disc& disc, PatchKind kind, double value) {
+  return std::make_unique<Simulation>(disc.domain, std::vector<ConstantBoundaryData>{{0, kind, value}}, disc.options);
+}
+
+// The step fails as a StepFailure naming the patch, and the state (particles,
+// history, carries, ledger, random numbers) is the one it started from: the
+// next step with sane limits equals the step of a run that never failed.
+void expect_limit_failure_keeps_state(Simulation& sim, double dt, const std::string& needle) {
+  const ParticleSet before = sim.particles();
+  const SimulationLedger ledger = sim.ledger();
+  const std::int64_t steps = sim.step_count();
+  try {
+    sim.advance(dt);
+    ADD_FAILURE() << "the step did not fail";
+  } catch (const StepFailure& e) {
+    EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+  }
+  EXPECT_TRUE(same_state(sim.particles(), before));
+  EXPECT_EQ(sim.ledger().inserted, ledger.inserted);
+  EXPECT_EQ(sim.step_count(), steps);
+}
+}  // namespace
+
+TEST(Simulation, HugeDirichletDataFailTheStepNotTheMachine) {
+  Disc disc(false);
+  auto sim = disc_with_data(disc, PatchKind::Dirichlet, 1e300);  // 1e300 / m_p particles: no integer holds it
+  sim->start(disc.cloud(20, 3));
+  expect_limit_failure_keeps_state(*sim, disc.pp.dt_explicit, "dirichlet patch 0");
+}
+
+TEST(Simulation, NeumannCarryPast2To53FailsInsteadOfLooping) {
+  // An inflow of 1e18 |A| dt / m_p > 2^53 particles: carry - m_p == carry, so
+  // the old insertion loop never ended.
+  Disc disc(false);
+  disc.options.max_particles = kMaxParticleCount;
+  auto sim = disc_with_data(disc, PatchKind::Neumann, -1e18);
+  sim->start(disc.cloud(20, 3));
+  expect_limit_failure_keeps_state(*sim, disc.pp.dt_explicit, "limit of 9007199254740992 particles");  // 2^53
+}
+
+TEST(Simulation, MaxParticlesStopsARunawayAndKeepsTheLastState) {
+  Disc disc(true);
+  disc.options.max_particles = 400;
+  auto sim = disc_with_data(disc, PatchKind::Dirichlet, 1.0 / disc.domain->volume());
+  sim->start(disc.cloud(20, 3));
+  sim->advance(disc.pp.dt_explicit);  // the normal data fit
+  ASSERT_LT(sim->particles().size(), 400u);
+  // Raising g tenfold asks for more than 400 particles in the band.
+  auto big = disc_with_data(disc, PatchKind::Dirichlet, 10.0 / disc.domain->volume());
+  EXPECT_THROW(big->start(disc.cloud(20, 3)), ResourceLimitExceeded);  // the band fill at t = 0
+  // The source: growth exp(s dt) - 1 copies per particle.
+  Disc src(false);
+  src.options.max_particles = 100;
+  src.options.source_rate = 1e3;
+  auto s = disc_with_data(src, PatchKind::Dirichlet, 1.0 / src.domain->volume());
+  s->start(src.cloud(20, 3));
+  expect_limit_failure_keeps_state(*s, src.pp.dt_explicit, "the source");
+  // The initial particles themselves.
+  src.options.source_rate = 0.0;
+  src.options.max_particles = 10;
+  auto few = disc_with_data(src, PatchKind::Dirichlet, 1.0);
+  EXPECT_THROW(few->start(src.cloud(20, 3)), InvalidArgument);
+  src.options.max_particles = -1;
+  EXPECT_THROW(src.options.validate(), InvalidArgument);
+}
+
+TEST(Simulation, FailedProjectionRestoresHistoryAndCarries) {
+  // Run A: two steps. Run B: the same, but with a limit that fails step 2 at
+  // first; after raising the limit the retried step 2 must equal A's.
+  Disc disc(false, TimeScheme::Bdf2);
+  auto a = disc_with_data(disc, PatchKind::Dirichlet, 1.0 / disc.domain->volume());
+  a->start(disc.cloud(40, 9));
+  a->advance(disc.pp.dt_explicit);
+  a->advance(disc.pp.dt_explicit);
+  auto b = disc_with_data(disc, PatchKind::Dirichlet, 1.0 / disc.domain->volume());
+  b->start(disc.cloud(40, 9));
+  b->advance(disc.pp.dt_explicit);
+  const auto saved = temp_file("limit.ckpt");
+  b->save_checkpoint(saved);
+  // The same state in a Simulation with a limit at the current count: step 2 fails.
+  Disc tight = disc;
+  tight.options.max_particles = static_cast<std::int64_t>(b->particles().size());
+  auto c = disc_with_data(tight, PatchKind::Dirichlet, 1.0 / disc.domain->volume());
+  c->load_checkpoint(saved);
+  EXPECT_THROW(c->advance(disc.pp.dt_explicit), StepFailure);
+  c->save_checkpoint(saved);  // what the failed step left: must be b's state
+  b->load_checkpoint(saved);
+  b->advance(disc.pp.dt_explicit);
+  EXPECT_TRUE(same_state(b->particles(), a->particles()));
+  std::filesystem::remove(saved);
+}

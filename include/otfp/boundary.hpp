@@ -124,7 +124,13 @@ class BoundaryProjection {
   // whose closest boundary point is on a Dirichlet patch are removed and
   // counted as absorbed before the papers' B_l^int projection, which is
   // otherwise unchanged (it draws the same random numbers).
+  // Before inserting, each condition checks that its particles fit under
+  // max_particles (set_max_particles; <= 0: kMaxParticleCount) and throws
+  // ResourceLimitExceeded naming the patch and the count otherwise (the
+  // particles may then be partly projected: otfp::Simulation puts the step back).
   PatchLedger apply(ParticleSet& particles, double t, double dt, Rng& rng);
+  void set_max_particles(std::int64_t max_particles) { max_particles_ = max_particles; }
+  std::int64_t max_particles() const { return max_particles_; }
 
   const std::vector<PatchLedger>& ledger() const { return ledger_; }  // indexed by position in conditions()
 
@@ -158,6 +164,8 @@ class BoundaryProjection {
   const std::string& reservoir_volume_rule(std::size_t condition_index) const;
 
  private:
+  std::int64_t max_particles_ = 0;
+  std::string patch_label(std::size_t condition_index, double t) const;  // for messages
   // Per Dirichlet condition in Reservoir mode.
   struct Reservoir {
     int sublayers = 0;                          // K

@@ -24,6 +24,9 @@ struct SourceResult {
 // or gets floor(g - 1) copies plus one more with probability frac(g - 1)
 // (g >= 1), so the expected mass change is exact. A copy is placed at a
 // random point of its parent blob (a draw from N(x_p, s_p^2/2 per axis)).
-SourceResult apply_source(ParticleSet& particles, const SourceField& s, double t, double dt, Rng& rng);
+// Throws ResourceLimitExceeded before a particle's copies would take the set
+// past max_particles (<= 0: kMaxParticleCount).
+SourceResult apply_source(ParticleSet& particles, const SourceField& s, double t, double dt, Rng& rng,
+                          std::int64_t max_particles = 0);
 
 }  // namespace otfp

@@ -24,6 +24,24 @@ class InvalidArgument : public std::invalid_argument {
   using std::invalid_argument::invalid_argument;
 };
 
+// A step would create more particles than allowed (SimulationOptions::
+// max_particles, or kMaxParticleCount): the message names what asked for
+// them and the figures. otfp::Simulation turns it into a StepFailure with the
+// state the step started from.
+class ResourceLimitExceeded : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// Largest particle count otfp handles: 2^53, past which counts held in
+// doubles (masses over m_p, carries) are no longer exact integers.
+constexpr std::int64_t kMaxParticleCount = std::int64_t{1} << 53;
+
+// Throws ResourceLimitExceeded unless `count` (a real number of particles to
+// add, possibly huge or non-finite) fits beside `current` under `limit`
+// (<= 0: kMaxParticleCount); `what` names the cause in the message.
+void require_particle_room(double count, std::size_t current, std::int64_t limit, const std::string& what);
+
 // Throws InvalidArgument("<field> = <value>: <rule>") unless ok.
 void require(bool ok, const std::string& field, double value, const std::string& rule);
 void require(bool ok, const std::string& field, const std::string& value, const std::string& rule);

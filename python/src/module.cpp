@@ -597,6 +597,7 @@ PYBIND11_MODULE(_otfp, m) {
       .field("time_control", &SimulationOptions::time_control, "TimeStepControlOptions")
       .field("max_error_rejections", &SimulationOptions::max_error_rejections, "adaptive tries per step")
       .field("seed", &SimulationOptions::seed, "random numbers")
+      .field("max_particles", &SimulationOptions::max_particles, "a step past it fails; 0: default_max_particles()")
       .validated()
       .done();
   Options<FillOptions>(m, "FillOptions", "Initial particles: uniform, lattice, Gaussian or cosine.")
@@ -614,6 +615,8 @@ PYBIND11_MODULE(_otfp, m) {
       .field("wavenumber", &FillOptions::wavenumber, "cosine k")
       .validated()
       .done();
+  m.def("default_max_particles", &default_max_particles,
+        "Half the machine's memory over 2.5 KB per particle: what SimulationOptions.max_particles = 0 means.");
   m.def("fill_particles",
         [](const PyDomain& domain, const FillOptions& o, std::uint64_t seed) {
           Rng rng(seed);

@@ -51,7 +51,7 @@ struct StopSignals {
 
 // The keys a resumed run may change: where it ends and how it writes.
 const char* const kResumeKeys[] = {"run.t_end", "run.max_steps", "run.vtk_interval", "run.checkpoint_interval",
-                                   "run.threads"};
+                                   "run.threads", "run.max_particles"};
 
 int error(std::ostream& err, const std::string& message, int code) {
   err << "otfp: error: " << message << "\n";
@@ -211,8 +211,9 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   if (r.exit_code == kExitInterrupted) return error(err, r.error, kExitInterrupted);
   if (r.exit_code != 0)
     return error(err,
-                 fmt::format("{} (the files in {} are complete up to step {}, t = {})", r.error, out_dir, r.last.step,
-                             r.last.t),
+                 r.rows ? fmt::format("{} (the files in {} are complete up to step {}, t = {})", r.error, out_dir,
+                                      r.last.step, r.last.t)
+                        : fmt::format("{} (before step 0: {} holds no rows)", r.error, out_dir),
                  kRunFailed);
   if (!quiet)
     err << fmt::format("otfp: {} steps to t = {}: n = {}, M/M_inf = {:.4f}, {:.1f} s -> {}\n", r.last.step, r.last.t,

@@ -308,6 +308,7 @@ const std::vector<Field>& fields() {
         key("run.dt_max", &RunSection::dt_max).with(greater(0)),
         key("run.vtk_interval", &RunSection::vtk_interval).with(at_least(0)),
         key("run.checkpoint_interval", &RunSection::checkpoint_interval).with(at_least(0)),
+        key("run.max_particles", &RunSection::max_particles).with(at_least(0)),
         key("run.threads", &RunSection::threads).with(interval('[', 0, 4096, ']', "must be in [0, 4096] (0: OpenMP default)")),
         key("domain.type", &DomainSection::type)
             .one_of({"ball", "box", "cylinder", "periodic_box", "square_pipe_obstacle", "free"}),

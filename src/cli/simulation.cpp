@@ -43,6 +43,7 @@ namespace otfp::app {
 
 std::string version() { return OTFP_APP_VERSION; }
 
+
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -377,6 +378,23 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   if (d.fill_count > 100'000'000)
     throw ConfigError(pa.fill_count ? "particles.fill_count" : pa.fill_mass ? "particles.fill_mass" : "particles.n_inf",
                       fmt::format("{} particles", d.fill_count), "must give at most 1e8 particles");
+  // Resource limit, before any work: the initial particles and the papers'
+  // equilibrium count n_inf must fit (steps that go past it fail at run time).
+  d.max_particles = std::min(c.run.max_particles > 0 ? c.run.max_particles : otfp::default_max_particles(),
+                             kMaxParticleCount);
+  const std::string limit_rule =
+      c.run.max_particles > 0
+          ? fmt::format("must be at most run.max_particles = {}", d.max_particles)
+          : fmt::format("must be at most {} particles (half this machine's memory at {} bytes per particle; "
+                        "set run.max_particles to change it)",
+                        d.max_particles, kBytesPerParticle);
+  if (d.fill_count > d.max_particles)
+    throw ConfigError(pa.fill == "file"       ? "particles.fill_file"
+                      : pa.fill_count         ? "particles.fill_count"
+                      : pa.fill_mass          ? "particles.fill_mass"
+                                              : "particles.n_inf",
+                      fmt::format("{} initial particles", d.fill_count), limit_rule);
+  if (pa.n_inf > d.max_particles) throw ConfigError("particles.n_inf", fmt::format("{}", pa.n_inf), limit_rule);
   if (pa.fill == "cosine") d.mode_wavenumber = 2.0 * kPi * static_cast<double>(pa.fill_mode) / (c.domain.hi[0] - c.domain.lo[0]);
 
   // Diagnostics centre, J_inf, reference curves.
@@ -446,6 +464,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   so.barrier_stiffness = d.barrier_C;
   so.no_flux = no_flux_treatment_from_string(tr.no_flux);
   so.seed = static_cast<std::uint64_t>(c.run.seed);
+  so.max_particles = d.max_particles;
   ProjectionOptions& po = so.projection;
   po.layer_b = d.layer_b;
   po.neumann_outflow = tr.neumann_outflow == "nearest" ? NeumannOutflow::NearestParticles : NeumannOutflow::Layer;
@@ -577,6 +596,7 @@ nlohmann::json ConfiguredRun::describe() const {
                         {"J_inf_rule", d.J_inf_rule},
                         {"center", to_json(d.center)},
                         {"fill_count", d.fill_count},
+                        {"max_particles", d.max_particles},
                         {"neumann_net_inflow", d.neumann_net_inflow},
                         {"reference_radius", opt(d.reference_radius)},
                         {"reference_length", opt(d.reference_length)},
@@ -1076,6 +1096,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       if (options.keep_series) result.series.push_back(r);
       prev = r;
       last = r;
+      result.rows = true;
       show_progress(r, final_row);
     };
 
@@ -1152,6 +1173,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       last.t = js.at("last_t").get<double>();
       last.mass_ratio = js.at("last_mass_ratio").get<double>();
       last.n_particles = js.at("last_n").get<std::int64_t>();
+      result.rows = true;  // the rows up to the checkpoint
       k_done = sim.step_count();
       if (!(js.at("k_origin").get<std::int64_t>() == 0 && js.at("dt_run").get<double>() == d.dt)) {
         // A new t_end changed dt = t_end / n_steps: the rest of the run gets

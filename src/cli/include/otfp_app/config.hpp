@@ -48,6 +48,7 @@ struct RunSection {
   std::optional<double> dt_max;   // adaptive: absent = t_end
   std::int64_t vtk_interval = 50;  // 0: initial and final snapshot only
   std::int64_t checkpoint_interval = 100;  // a checkpoint every this many steps and at the end; 0: at the end only
+  std::int64_t max_particles = 0;  // a run that would hold more fails; 0: half the memory / kBytesPerParticle
   int threads = 1;  // 0: OpenMP default
 };
 

@@ -67,6 +67,7 @@ struct Derived {
   std::string J_inf_rule;
   Vec3 center = Vec3::Zero();  // polar inertia centre
   std::int64_t fill_count = 0;
+  std::int64_t max_particles = 0;  // run.max_particles, or half the memory / kBytesPerParticle
   double neumann_net_inflow = 0.0;  // integral over [0, t_end] of the inflow of all Neumann patches
   std::optional<double> reference_radius, reference_length;
   std::optional<double> reference_J_inf;  // analytic steady polar inertia (J reference of crank_*)
@@ -121,6 +122,7 @@ struct RunResult {
   std::string error;              // why it failed
   std::vector<StepRecord> series;
   StepRecord last;
+  bool rows = false;              // at least one row (step 0) was written
   nlohmann::json summary;         // what summary.json holds
 };
 
