@@ -1,10 +1,15 @@
 #include "otfp_app/config.hpp"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
-#include <fstream>
+#include <cstring>
 #include <functional>
 #include <initializer_list>
 #include <limits>
@@ -1009,11 +1014,39 @@ const char* type_name(Kind k) {
 }  // namespace
 
 Config parse_config_file(const std::filesystem::path& file, const std::vector<std::string>& overrides) {
-  std::ifstream in(file, std::ios::binary);
-  if (!in) throw ConfigError("config", "\"" + file.string() + "\"", "cannot open the configuration file");
-  std::ostringstream text;
-  text << in.rdbuf();
-  return parse_text(text.str(), overrides, file.string(), fs::absolute(file).parent_path());
+  // A directory, a device or a file that fails to read (/proc/self/mem) must
+  // not read as an empty configuration (all defaults): POSIX calls, whose
+  // errors are not swallowed as the stream's are.
+  const auto fail = [&](const std::string& why) {
+    return ConfigError("config", "cannot read CONFIG: " + file.string() + ": " + why);
+  };
+  const int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK);
+  if (fd < 0) throw fail(std::strerror(errno));
+  struct stat st {};
+  if (::fstat(fd, &st) != 0) {
+    const std::string why = std::strerror(errno);
+    ::close(fd);
+    throw fail(why);
+  }
+  if (!S_ISREG(st.st_mode)) {
+    ::close(fd);
+    throw fail(S_ISDIR(st.st_mode) ? "not a regular file (a directory)" : "not a regular file");
+  }
+  std::string text;
+  char buf[65536];
+  for (;;) {
+    const ssize_t n = ::read(fd, buf, sizeof buf);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      const std::string why = std::strerror(errno);
+      ::close(fd);
+      throw fail(why);
+    }
+    if (n == 0) break;
+    text.append(buf, static_cast<std::size_t>(n));
+  }
+  ::close(fd);
+  return parse_text(text, overrides, file.string(), fs::absolute(file).parent_path());
 }
 
 Config parse_config_string(std::string_view toml_text, const std::vector<std::string>& overrides,
