@@ -66,3 +66,42 @@ TEST(CliRobustness, ConfigMustBeAReadableRegularFile) {
   EXPECT_TRUE(contains(text, missing) && contains(text, "No such file")) << text;
   EXPECT_EQ(lines(text), 1) << text;
 }
+
+// --out "" is refused, and an --out that cannot be written (below a regular
+// file: fails even for root; a read-only directory when not root) is found
+// before any work (exit 2), not after the initial fill (exit 1).
+TEST(CliRobustness, OutMustBeAWritableNonEmptyPath) {
+  std::string text;
+  EXPECT_EQ(run_binary("run " + kExample + " --out ''" + kShort, text), 2);
+  EXPECT_EQ(text.rfind("otfp: error: --out", 0), 0u) << text;
+  EXPECT_TRUE(contains(text, "must be a non-empty path")) << text;
+  EXPECT_EQ(lines(text), 1) << text;
+  EXPECT_EQ(run_binary("run --resume ''", text), 2);
+  EXPECT_EQ(text, "otfp: error: --resume = \"\": must be a non-empty path\n");
+  EXPECT_EQ(run_binary("sweep " + kExample + " --vary run.t_end=0.1 --out ''" + kShort, text), 2);
+  EXPECT_EQ(text.rfind("otfp: error: --out", 0), 0u) << text;
+  EXPECT_TRUE(contains(text, "must be a non-empty path")) << text;
+
+  const fs::path base = fresh_dir("robust_out_base");
+  fs::create_directories(base);
+  const fs::path file = base / "somefile";
+  std::ofstream(file) << "not a directory\n";
+  const fs::path below_file = file / "out";
+  EXPECT_EQ(run_binary("run " + kExample + " --out " + below_file.string() + kShort, text), 2);
+  EXPECT_EQ(text.rfind("otfp: error: --out = \"" + below_file.string() + "\": ", 0), 0u) << text;
+  EXPECT_EQ(lines(text), 1) << text;
+  EXPECT_EQ(read_text(file), "not a directory\n");
+
+  if (::geteuid() != 0) {  // permission bits do not stop root
+    const fs::path ro = base / "readonly";
+    fs::create_directories(ro);
+    fs::permissions(ro, fs::perms::owner_read | fs::perms::owner_exec);
+    EXPECT_EQ(run_binary("run " + kExample + " --out " + (ro / "out").string() + kShort, text), 2);
+    EXPECT_EQ(lines(text), 1) << text;
+    EXPECT_EQ(run_binary("run " + kExample + " --out " + ro.string() + kShort, text), 2);
+    EXPECT_EQ(lines(text), 1) << text;
+    fs::permissions(ro, fs::perms::owner_all);
+    EXPECT_TRUE(fs::is_empty(ro));
+  }
+  fs::remove_all(base);
+}

@@ -1,8 +1,11 @@
 #include "otfp_app/cli.hpp"
 
+#include <fcntl.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <csignal>
+#include <cstring>
 
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
@@ -71,6 +74,32 @@ std::unique_ptr<ConfiguredRun> load(const std::string& config, const std::vector
   return nullptr;
 }
 
+// The run's output directory, made ready before any work: created (the
+// configuration has been accepted) and probed with a file, so that an
+// unwritable --out is bad input (exit 2), not a run that fails after its
+// initial fill. Returns the reason it cannot be used, or "".
+std::string prepare_out_dir(const std::filesystem::path& dir) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  const bool existed = fs::exists(dir, ec);
+  if (ec && ec != std::errc::no_such_file_or_directory) return "cannot use it: " + ec.message();
+  if (existed && !fs::is_directory(dir, ec)) return "exists and is not a directory";
+  if (!existed) {
+    fs::create_directories(dir, ec);
+    if (ec) return "cannot create the directory: " + ec.message();
+  }
+  const fs::path probe = dir / fmt::format(".otfp.probe{}", ::getpid());
+  const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+  if (fd < 0) {
+    const std::string why = std::strerror(errno);
+    if (!existed) fs::remove(dir, ec);  // the directory just made, still empty
+    return "cannot write there: " + why;
+  }
+  ::close(fd);
+  ::unlink(probe.c_str());
+  return "";
+}
+
 }  // namespace
 
 int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream& err) {
@@ -126,6 +155,7 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   }
 
   if (sweep->parsed()) {
+    if (out_dir.empty()) return error(err, "--out = \"\": must be a non-empty path", kUsage);
     try {
       SweepOptions so;
       so.config = config;
@@ -148,6 +178,8 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
     }
   }
 
+  if (run->parsed() && run->count("--resume") > 0 && resume_dir.empty())
+    return error(err, "--resume = \"\": must be a non-empty path", kUsage);
   const bool resume = run->parsed() && !resume_dir.empty();
   if (run->parsed()) {
     if (resume) {
@@ -171,6 +203,8 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
       }
       config = (std::filesystem::path(resume_dir) / "config.toml").string();
       out_dir = resume_dir;
+    } else if (run->count("--out") > 0 && out_dir.empty()) {
+      return error(err, "--out = \"\": must be a non-empty path", kUsage);
     } else if (config.empty() || out_dir.empty()) {
       return error(err, std::string(config.empty() ? "CONFIG" : "--out") + " is required (or --resume DIR) (try --help)",
                    kUsage);
@@ -187,9 +221,8 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   }
 
   const std::filesystem::path dir(out_dir);
-  std::error_code ec;
-  if (std::filesystem::exists(dir, ec) && !std::filesystem::is_directory(dir, ec))
-    return error(err, "--out = \"" + out_dir + "\": exists and is not a directory", kUsage);
+  if (const std::string why = prepare_out_dir(dir); !why.empty())
+    return error(err, (resume ? "--resume = \"" : "--out = \"") + out_dir + "\": " + why, kUsage);
 
   RunOptions ro;
   ro.out_dir = dir;
