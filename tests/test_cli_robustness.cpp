@@ -2,6 +2,8 @@
 // before any work, and the exit codes 2 (bad input), 1 (failed run) and
 // 3 (interrupted).
 #include <gtest/gtest.h>
+#include <fcntl.h>
+#include <sys/file.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -104,4 +106,82 @@ TEST(CliRobustness, OutMustBeAWritableNonEmptyPath) {
     EXPECT_TRUE(fs::is_empty(ro));
   }
   fs::remove_all(base);
+}
+
+// A directory that holds an earlier run is refused unless --overwrite (which
+// clears the old outputs, and only those) or --resume; a lock file keeps a
+// second run out of a directory in use.
+TEST(CliRobustness, OutputDirectoryDiscipline) {
+  const fs::path dir = fresh_dir("robust_discipline");
+  std::string text;
+  ASSERT_EQ(run_binary("run " + kExample + " --out " + dir.string() + kShort, text), 0) << text;
+  EXPECT_FALSE(fs::exists(dir / ".otfp.lock")) << "the lock is removed at the end";
+  const std::string summary = read_text(dir / "summary.json");
+
+  // Again into the same directory: refused, nothing touched.
+  EXPECT_EQ(run_binary("run " + kExample + " --out " + dir.string() + kShort, text), 2);
+  EXPECT_EQ(text.rfind("otfp: error: --out = \"" + dir.string() + "\": ", 0), 0u) << text;
+  EXPECT_TRUE(contains(text, "--overwrite") && contains(text, "--resume")) << text;
+  EXPECT_EQ(lines(text), 1) << text;
+  EXPECT_EQ(read_text(dir / "summary.json"), summary);
+  EXPECT_FALSE(fs::exists(dir / ".otfp.lock"));
+  EXPECT_EQ(run_binary("run --resume " + dir.string() + " --overwrite --quiet", text), 2);
+  EXPECT_TRUE(contains(text, "--overwrite")) << text;
+  EXPECT_EQ(lines(text), 1) << text;
+
+  // --overwrite clears the old outputs (stale snapshots and temporary files
+  // too) and leaves unknown files alone.
+  std::ofstream(dir / "notes.txt") << "mine\n";
+  std::ofstream(dir / "particles_00077.vtp") << "stale snapshot\n";
+  std::ofstream(dir / "summary.json.tmp4242") << "stale temporary\n";
+  std::ofstream(dir / "particles.csv") << "not an otfp output name\n";
+  ASSERT_EQ(run_binary("run " + kExample + " --out " + dir.string() + kShort + " --overwrite", text), 0) << text;
+  EXPECT_EQ(read_text(dir / "notes.txt"), "mine\n");
+  EXPECT_TRUE(fs::exists(dir / "particles.csv"));
+  EXPECT_FALSE(fs::exists(dir / "particles_00077.vtp"));
+  EXPECT_FALSE(fs::exists(dir / "summary.json.tmp4242"));
+  EXPECT_TRUE(fs::exists(dir / "summary.json") && fs::exists(dir / "series.csv") && fs::exists(dir / "checkpoint.bin"));
+  EXPECT_NE(read_text(dir / "particles.pvd").find("particles_00000.vtp"), std::string::npos);
+  EXPECT_EQ(read_text(dir / "particles.pvd").find("particles_00077.vtp"), std::string::npos);
+
+  // A directory in use (its lock held, here by this process) is refused.
+  {
+    const int fd = ::open((dir / ".otfp.lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+    ASSERT_GE(fd, 0);
+    ASSERT_EQ(::flock(fd, LOCK_EX | LOCK_NB), 0);
+    EXPECT_EQ(run_binary("run " + kExample + " --out " + dir.string() + kShort + " --overwrite", text), 2);
+    EXPECT_EQ(text.rfind("otfp: error: --out = \"" + dir.string() + "\": ", 0), 0u) << text;
+    EXPECT_TRUE(contains(text, "another otfp run")) << text;
+    EXPECT_EQ(lines(text), 1) << text;
+    EXPECT_EQ(run_binary("run --resume " + dir.string() + " --quiet --set run.max_steps=3", text), 2);
+    EXPECT_TRUE(contains(text, "another otfp run")) << text;
+    ::close(fd);
+  }
+  // A stale lock file (a killed run's, not locked) does not stop a run.
+  ASSERT_TRUE(fs::exists(dir / ".otfp.lock"));
+  EXPECT_EQ(run_binary("run --resume " + dir.string() + " --quiet --set run.max_steps=3", text), 0) << text;
+  EXPECT_FALSE(fs::exists(dir / ".otfp.lock"));
+  fs::remove_all(dir);
+
+  // A non-empty directory without an earlier run is fine.
+  fs::create_directories(dir);
+  std::ofstream(dir / "notes.txt") << "mine\n";
+  EXPECT_EQ(run_binary("run " + kExample + " --out " + dir.string() + kShort, text), 0) << text;
+  fs::remove_all(dir);
+}
+
+// A sweep run again into its own directory reruns every point.
+TEST(CliRobustness, SweepRerunsIntoItsDirectory) {
+  const fs::path dir = fresh_dir("robust_sweep");
+  std::string text;
+  const std::string args = "sweep " + kExample + " --vary run.max_steps=1,2 --out " + dir.string() +
+                           " --set particles.n_inf=100 --quiet";
+  for (int pass = 0; pass < 2; ++pass) {
+    SCOPED_TRACE(pass);
+    EXPECT_EQ(run_binary(args, text), 0) << text;
+    const auto rows = otfp::test::read_csv(dir / "runs.csv");
+    ASSERT_EQ(rows.size(), 2u);
+    for (const auto& row : rows) EXPECT_EQ(row.at("status"), "completed") << row.at("error");
+  }
+  fs::remove_all(dir);
 }

@@ -292,7 +292,9 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
     const std::filesystem::path dir = o.out_dir / row.dir;
     std::filesystem::create_directories(dir);
     std::filesystem::remove(dir / "summary.json", ec);
-    std::vector<std::string> args = {o.executable.string(), "run", o.config.string(), "--out", dir.string(), "--quiet"};
+    // The run directories are the sweep's own: a sweep run again replaces their runs.
+    std::vector<std::string> args = {o.executable.string(), "run",       o.config.string(), "--out",
+                                     dir.string(),          "--overwrite", "--quiet"};
     for (const std::string& s : o.sets) args.insert(args.end(), {"--set", s});
     for (std::size_t k = 0; k < keys.size(); ++k) args.insert(args.end(), {"--set", keys[k] + "=" + grid[i][k]});
     std::vector<char*> argv;
