@@ -11,10 +11,12 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <string>
 #include <vector>
 
 #include "app_test_support.hpp"
+#include "otfp_app/cli.hpp"
 
 namespace fs = std::filesystem;
 using otfp::test::fresh_dir;
@@ -183,5 +185,81 @@ TEST(CliRobustness, SweepRerunsIntoItsDirectory) {
     ASSERT_EQ(rows.size(), 2u);
     for (const auto& row : rows) EXPECT_EQ(row.at("status"), "completed") << row.at("error");
   }
+  fs::remove_all(dir);
+}
+
+namespace {
+
+// `otfp check` in process (arguments may hold control characters): exit code, stderr.
+int check(const std::vector<std::string>& extra, std::string& error_text, const std::string& config = kExample) {
+  std::vector<std::string> args = {"otfp", "check", config};
+  args.insert(args.end(), extra.begin(), extra.end());
+  std::vector<const char*> argv;
+  for (const std::string& a : args) argv.push_back(a.c_str());
+  std::ostringstream out, err;
+  const int code = otfp::app::cli_main(static_cast<int>(argv.size()), argv.data(), out, err);
+  error_text = err.str();
+  return code;
+}
+
+bool has_control(const std::string& text) {
+  for (std::size_t i = 0; i + 1 < text.size(); ++i)  // the final newline ends the line
+    if (static_cast<unsigned char>(text[i]) < 0x20 || text[i] == 0x7f) return true;
+  return false;
+}
+
+}  // namespace
+
+// --set: malformed keys and values with control characters are refused; the
+// messages escape control characters, print values as given and name the
+// user's key (never an internal one or a std:: function).
+TEST(CliRobustness, SetIsStrict) {
+  std::string text;
+  struct Bad {
+    std::string set, starts, has;
+  };
+  const std::vector<Bad> bad = {
+      {"boundary[0.value=1", "otfp: error: boundary[0.value = ", "malformed key"},
+      {"boundary[0]]value=1", "otfp: error: boundary[0]]value = ", "malformed key"},
+      {"boundary0].value=1", "otfp: error: boundary0].value = ", "malformed key"},
+      {"run[0].dim=2", "otfp: error: run[0].dim = ", "malformed key"},
+      {"run.d im=2", "otfp: error: run.d im = ", "malformed key"},
+      {"solver.stepper=implicit\nrun.dim=2", "otfp: error: solver.stepper = \"implicit\\nrun.dim=2\"",
+       "control character"},
+      {"solver.stepper=impl\x01icit", "otfp: error: solver.stepper = \"impl\\x01icit\"", "control character"},
+      {"run.t_end=1\t", "otfp: error: run.t_end = \"1\\t\"", "control character"},
+      {"run.d\x1bim=2", "otfp: error: run.d\\x1bim = ", "malformed key"},
+      {"run.dim=3.0", "otfp: error: run.dim = 3.0: must be an integer", ""},
+      {"particles.n_inf=1e3", "otfp: error: particles.n_inf = 1e3: must be an integer", ""},
+      {"boundary.99999999999999999999999.value=1", "otfp: error: boundary[99999999999999999999999]", "out of range"},
+      {"solver.barrier_factor=1e308", "otfp: error: solver.barrier_factor = ", "finite"},
+      {"physics.kappa=1e300", "otfp: error: ", "physics.kappa"},
+  };
+  for (const Bad& b : bad) {
+    SCOPED_TRACE(b.set);
+    EXPECT_EQ(check({"--set", b.set}, text), 2);
+    EXPECT_EQ(text.rfind(b.starts, 0), 0u) << text;
+    EXPECT_TRUE(contains(text, b.has)) << text;
+    EXPECT_EQ(lines(text), 1) << text;
+    EXPECT_FALSE(has_control(text)) << text;
+    for (const char* leak : {"stoul", "stoll", "stod", "stoi", "basic_string"})
+      EXPECT_FALSE(contains(text, leak)) << text;
+  }
+  // The forms that are meant to work still do.
+  for (const char* good : {"boundary[0].value=0.5", "boundary.0.value=0.5", "boundary.surface.value=0.5",
+                                  "run.dim=3", "solver.stepper=explicit", "physics.velocity=[1, 0, 0]"}) {
+    EXPECT_EQ(check({"--set", good}, text), 0) << good << ": " << text;
+  }
+  // Values from a file are echoed the same way: as given, control characters escaped.
+  const fs::path dir = fresh_dir("robust_set");
+  fs::create_directories(dir);
+  const fs::path file = dir / "c.toml";
+  std::ofstream(file) << "[run]\ndim = 3.0\n";
+  EXPECT_EQ(check({}, text, file.string()), 2);
+  EXPECT_EQ(text, "otfp: error: run.dim = 3.0: must be an integer\n");
+  std::ofstream(file) << "[solver]\nstepper = \"implicit\\nexplicit\"\n";
+  EXPECT_EQ(check({}, text, file.string()), 2);
+  EXPECT_EQ(text.rfind("otfp: error: solver.stepper = \"implicit\\nexplicit\": must be one of", 0), 0u) << text;
+  EXPECT_EQ(lines(text), 1) << text;
   fs::remove_all(dir);
 }

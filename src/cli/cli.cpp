@@ -59,6 +59,19 @@ struct StopSignals {
 const char* const kResumeKeys[] = {"run.t_end", "run.max_steps", "run.vtk_interval", "run.checkpoint_interval",
                                    "run.threads"};
 
+// Control characters of user text as escapes (one-line messages).
+std::string escaped(const std::string& s) {
+  std::string out;
+  for (const char ch : s) {
+    const auto u = static_cast<unsigned char>(ch);
+    if (u < 0x20 || u == 0x7f)
+      out += fmt::format("\\x{:02x}", u);
+    else
+      out += ch;
+  }
+  return out;
+}
+
 int error(std::ostream& err, const std::string& message, int code) {
   err << "otfp: error: " << message << "\n";
   return code;
@@ -289,7 +302,7 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
         for (const char* k : kResumeKeys) allowed = allowed || key == k;
         if (!allowed)
           return error(err,
-                       "--set " + set + ": cannot change on --resume (only run.t_end, run.max_steps, run.vtk_interval, "
+                       "--set " + escaped(set) + ": cannot change on --resume (only run.t_end, run.max_steps, run.vtk_interval, "
                                         "run.checkpoint_interval, run.threads)",
                        kUsage);
       }

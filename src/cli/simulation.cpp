@@ -291,13 +291,25 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   d.dt_explicit = pp.dt_explicit;
   const double dt0 = c.run.dt ? *c.run.dt : c.run.dt_factor * d.dt_explicit;
   const double steps = std::ceil(c.run.t_end / dt0 * (1.0 - 1e-12));
-  if (!(steps <= 1e9))
-    throw ConfigError(c.run.dt ? "run.dt" : "run.dt_factor", fmt::format("{}", c.run.dt ? *c.run.dt : c.run.dt_factor),
-                      fmt::format("gives {} steps to run.t_end (more than 1e9)", steps));
+  if (!(steps <= 1e9)) {
+    if (c.run.dt)
+      throw ConfigError("run.dt", fmt::format("{}", *c.run.dt),
+                        fmt::format("gives {} steps to run.t_end = {} (more than 1e9)", steps, c.run.t_end));
+    // dt comes from three keys; the message names them all with their values.
+    throw ConfigError("run.dt_factor", fmt::format("{}", c.run.dt_factor),
+                      fmt::format("dt = run.dt_factor dr^2 / physics.kappa = {} (physics.kappa = {}, dr = {}) gives {} "
+                                  "steps to run.t_end = {} (more than 1e9)",
+                                  dt0, c.physics.kappa, d.dr, steps, c.run.t_end));
+  }
   d.n_steps = std::max<std::int64_t>(1, static_cast<std::int64_t>(steps));
   d.dt = c.run.t_end / static_cast<double>(d.n_steps);
   d.steps_to_run = c.run.max_steps > 0 ? std::min(d.n_steps, c.run.max_steps) : d.n_steps;
   d.barrier_C = c.solver.barrier_stiffness ? *c.solver.barrier_stiffness : c.solver.barrier_factor / d.dt_explicit;
+  if (!c.solver.barrier_stiffness && !(std::isfinite(d.barrier_C) && d.barrier_C > 0.0))
+    throw ConfigError("solver.barrier_factor", fmt::format("{}", c.solver.barrier_factor),
+                      fmt::format("gives the barrier stiffness C = barrier_factor / dt_explicit = {} (dt_explicit = "
+                                  "dr^2 / physics.kappa = {}): must be finite and > 0",
+                                  d.barrier_C, d.dt_explicit));
 
   // Net Neumann inflow over [0, t_end] (f is the outward flux: inflow is -f).
   for (const PatchInfo& p : patches_)
