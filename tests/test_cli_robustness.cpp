@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <csignal>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -262,4 +263,55 @@ TEST(CliRobustness, SetIsStrict) {
   EXPECT_EQ(text.rfind("otfp: error: solver.stepper = \"implicit\\nexplicit\": must be one of", 0), 0u) << text;
   EXPECT_EQ(lines(text), 1) << text;
   fs::remove_all(dir);
+}
+
+// SIGINT to `otfp sweep`: it passes the signal on to its running runs, reaps
+// them, writes runs.csv with the rows it has (the stopped runs "interrupted")
+// and exits with code 3.
+TEST(CliRobustness, SweepForwardsASignalAndRecordsInterruptedRuns) {
+  const fs::path dir = fresh_dir("robust_sweep_signal");
+  const fs::path log = fresh_dir("robust_sweep_signal_log");
+  const std::vector<std::string> args = {OTFP_CLI_PATH, "sweep", kExample, "--vary", "particles.n_inf=400,401,402",
+                                         "--jobs", "2", "--out", dir.string(), "--set", "run.max_steps=60"};
+  const pid_t pid = ::fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (fd >= 0) {
+      ::dup2(fd, STDOUT_FILENO);
+      ::dup2(fd, STDERR_FILENO);
+    }
+    std::vector<char*> argv;
+    for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    ::execv(argv[0], argv.data());
+    ::_exit(127);
+  }
+  // Wait until both runs are stepping (their series.csv exist), then Ctrl-C.
+  for (int i = 0; i < 600; ++i) {
+    if (fs::exists(dir / "run_000" / "series.csv") && fs::exists(dir / "run_001" / "series.csv")) break;
+    ::usleep(50000);
+  }
+  ASSERT_TRUE(fs::exists(dir / "run_001" / "series.csv"));
+  ::kill(pid, SIGINT);
+  int status = 0;
+  ASSERT_EQ(::waitpid(pid, &status, 0), pid);
+  const std::string text = read_text(log);
+  ASSERT_TRUE(WIFEXITED(status)) << "the sweep was killed by the signal: " << text;
+  EXPECT_EQ(WEXITSTATUS(status), 3) << text;
+  EXPECT_TRUE(contains(text, "otfp: error: sweep interrupted")) << text;
+  const auto rows = otfp::test::read_csv(dir / "runs.csv");
+  ASSERT_EQ(rows.size(), 2u) << "the two runs started, not the third";
+  for (const auto& row : rows) {
+    SCOPED_TRACE(row.at("dir"));
+    EXPECT_EQ(row.at("status"), "interrupted") << row.at("error");
+    EXPECT_EQ(row.at("exit_code"), "3");
+    const fs::path run = dir / row.at("dir");
+    EXPECT_FALSE(fs::exists(run / ".otfp.lock")) << "the run did not finish its exit";
+    EXPECT_TRUE(contains(read_text(run / "summary.json"), "\"status\": \"interrupted\""));
+    EXPECT_TRUE(fs::exists(run / "checkpoint.bin"));
+  }
+  EXPECT_FALSE(fs::exists(dir / "run_002"));
+  fs::remove_all(dir);
+  fs::remove(log);
 }

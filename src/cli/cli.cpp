@@ -55,6 +55,35 @@ struct StopSignals {
   StopSignals& operator=(const StopSignals&) = delete;
 };
 
+// SIGINT/SIGTERM during `otfp sweep`: every signal is counted and passed on
+// to the running runs (the first lets them finish their step, a second stops
+// them at once); the sweep starts no more runs and writes runs.csv.
+volatile std::sig_atomic_t g_sweep_signal = 0, g_sweep_signals = 0;
+extern "C" void on_sweep_signal(int sig) {
+  g_sweep_signal = sig;
+  g_sweep_signals = g_sweep_signals + 1;
+}
+
+struct SweepSignals {
+  struct sigaction old_int {}, old_term {};
+  SweepSignals() {
+    g_sweep_signal = 0;
+    g_sweep_signals = 0;
+    struct sigaction sa {};
+    sa.sa_handler = on_sweep_signal;
+    sigemptyset(&sa.sa_mask);
+    sa.sa_flags = SA_RESTART;
+    sigaction(SIGINT, &sa, &old_int);
+    sigaction(SIGTERM, &sa, &old_term);
+  }
+  ~SweepSignals() {
+    sigaction(SIGINT, &old_int, nullptr);
+    sigaction(SIGTERM, &old_term, nullptr);
+  }
+  SweepSignals(const SweepSignals&) = delete;
+  SweepSignals& operator=(const SweepSignals&) = delete;
+};
+
 // The keys a resumed run may change: where it ends and how it writes.
 const char* const kResumeKeys[] = {"run.t_end", "run.max_steps", "run.vtk_interval", "run.checkpoint_interval",
                                    "run.threads"};
@@ -268,7 +297,21 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
       so.timeout_seconds = timeout;
       so.executable = std::filesystem::read_symlink("/proc/self/exe");
       so.progress = !quiet;
-      const SweepResult r = run_sweep(so, err);
+      so.stop_signal = &g_sweep_signal;
+      so.stop_count = &g_sweep_signals;
+      SweepResult r;
+      {
+        const SweepSignals signals;
+        r = run_sweep(so, err);
+      }
+      if (r.interrupted) {
+        int finished = 0;
+        for (const SweepRow& row : r.rows) finished += row.status == "completed" ? 1 : 0;
+        return error(err,
+                     fmt::format("sweep interrupted by a signal: {} of its runs completed -> {}/runs.csv", finished,
+                                 out_dir),
+                     kExitInterrupted);
+      }
       if (!quiet)
         err << fmt::format("otfp: sweep of {} runs, {} not completed -> {}/runs.csv\n", r.rows.size(), r.failed,
                            out_dir);
