@@ -315,3 +315,75 @@ TEST(CliRobustness, SweepForwardsASignalAndRecordsInterruptedRuns) {
   fs::remove_all(dir);
   fs::remove(log);
 }
+
+namespace {
+
+// Starts `otfp run` on the sphere (steps of a good fraction of a second)
+// into `dir`; returns its pid once its first row is written.
+pid_t start_run(const fs::path& dir) {
+  const std::vector<std::string> args = {OTFP_CLI_PATH, "run", kExample, "--out", dir.string(), "--quiet",
+                                         "--set", "particles.n_inf=400", "--set", "run.max_steps=40"};
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    const int fd = ::open((dir.string() + ".log").c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (fd >= 0) {
+      ::dup2(fd, STDOUT_FILENO);
+      ::dup2(fd, STDERR_FILENO);
+    }
+    std::vector<char*> argv;
+    for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    ::execv(argv[0], argv.data());
+    ::_exit(127);
+  }
+  for (int i = 0; i < 600 && pid > 0; ++i) {
+    if (lines(read_text(dir / "series.csv")) >= 2) break;
+    ::usleep(20000);
+  }
+  return pid;
+}
+
+std::vector<std::string> temporary_files(const fs::path& dir) {
+  std::vector<std::string> out;
+  for (const auto& e : fs::directory_iterator(dir))
+    if (contains(e.path().filename().string(), ".tmp") || e.path().filename() == ".otfp.lock")
+      out.push_back(e.path().filename().string());
+  return out;
+}
+
+}  // namespace
+
+// SIGTERM once: the step finishes and the run ends "interrupted" (exit 3)
+// with its checkpoint. SIGTERM twice: the run stops at once, still with exit
+// code 3, summary.json "interrupted" and no temporary or lock files.
+TEST(CliRobustness, SignalsEndTheRunInterruptedWithoutTemporaryFiles) {
+  for (const int signals : {1, 2}) {
+    SCOPED_TRACE(signals);
+    const fs::path dir = fresh_dir("robust_signal" + std::to_string(signals));
+    const pid_t pid = start_run(dir);
+    ASSERT_GT(pid, 0);
+    ASSERT_GE(lines(read_text(dir / "series.csv")), 2);
+    for (int k = 0; k < signals; ++k) {
+      ::kill(pid, SIGTERM);
+      ::usleep(10000);
+    }
+    int status = 0;
+    ASSERT_EQ(::waitpid(pid, &status, 0), pid);
+    const std::string log = read_text(dir.string() + ".log");
+    ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << WTERMSIG(status) << ": " << log;
+    EXPECT_EQ(WEXITSTATUS(status), 3) << log;
+    EXPECT_EQ(lines(log), 1) << log;
+    EXPECT_TRUE(contains(log, "otfp run --resume " + dir.string())) << log;
+    const std::string summary = read_text(dir / "summary.json");
+    EXPECT_TRUE(contains(summary, "\"status\": \"interrupted\"")) << summary.substr(0, 300);
+    EXPECT_EQ(temporary_files(dir), std::vector<std::string>{});
+    const std::string series = read_text(dir / "series.csv");
+    ASSERT_FALSE(series.empty());
+    EXPECT_EQ(series.back(), '\n');
+    if (signals == 1) {
+      EXPECT_TRUE(fs::exists(dir / "checkpoint.bin"));
+    }
+    fs::remove_all(dir);
+    fs::remove(dir.string() + ".log");
+  }
+}

@@ -22,6 +22,7 @@
 #include "otfp_app/config.hpp"
 #include "otfp_app/simulation.hpp"
 #include "otfp_app/sweep.hpp"
+#include "otfp_app/writers.hpp"
 
 namespace otfp::app {
 
@@ -32,9 +33,21 @@ constexpr int kUsage = 2;
 
 // SIGINT/SIGTERM during `otfp run`: finish the current step, write the
 // checkpoint and complete files, exit with kExitInterrupted. A second signal
-// kills at once (the handler resets itself).
+// stops at once, also with kExitInterrupted, after the async-signal-safe
+// clean-up: no temporary files, summary.json "interrupted" (writers.hpp).
 volatile std::sig_atomic_t g_stop = 0;
-extern "C" void on_stop_signal(int) { g_stop = 1; }
+char g_kill_message[1024] = {};
+extern "C" void on_stop_signal(int) {
+  if (g_stop) {
+    kill_time_cleanup();
+    const std::size_t n = std::strlen(g_kill_message);
+    if (n > 0 && ::write(STDERR_FILENO, g_kill_message, n) < 0) {
+      // Nothing left to report it to.
+    }
+    ::_exit(kExitInterrupted);
+  }
+  g_stop = 1;
+}
 
 struct StopSignals {
   struct sigaction old_int {}, old_term {};
@@ -43,7 +56,7 @@ struct StopSignals {
     struct sigaction sa {};
     sa.sa_handler = on_stop_signal;
     sigemptyset(&sa.sa_mask);
-    sa.sa_flags = SA_RESETHAND;
+    sa.sa_flags = 0;
     sigaction(SIGINT, &sa, &old_int);
     sigaction(SIGTERM, &sa, &old_term);
   }
@@ -379,11 +392,19 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   ro.keep_series = false;
   ro.resume = resume;
   ro.stop_flag = &g_stop;
+  // What a second signal cleans up besides write_file_atomic's file: the
+  // library's checkpoint temporary file and the lock.
+  set_kill_time_paths({dir / fmt::format("checkpoint.bin.tmp{}", ::getpid()), dir / ".otfp.lock"});
+  fmt::format_to_n(g_kill_message, sizeof g_kill_message - 1,
+                   "otfp: error: stopped by a second signal during a step; continue from the last checkpoint with: "
+                   "otfp run --resume {}\n",
+                   out_dir);
   RunResult r;
   {
     const StopSignals signals;
     r = sim->run(ro);
   }
+  clear_kill_time_state();
   if (r.nothing_to_do) {
     if (!quiet)
       err << fmt::format("otfp: {} is already at step {}, t = {}: nothing to do (extend it with --set run.t_end=...)\n",

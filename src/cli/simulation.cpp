@@ -1039,6 +1039,19 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
 
   StepRecord last;
   bool interrupted = false;
+  std::chrono::steady_clock::time_point kill_summary_time{};
+  // The summary.json a second signal leaves behind (kill_time_cleanup), from
+  // the last row written (`have_row`) or before the first one.
+  auto arm_kill_summary = [&](const StepRecord& r, bool have_row) {
+    if (!write || !options.stop_flag) return;
+    const std::string why =
+        have_row ? fmt::format("stopped by a second signal during a step after step {} (t = {}); the files are "
+                               "complete up to step {} at least; continue from the last checkpoint, if one was "
+                               "written, with: otfp run --resume {}",
+                               r.step, r.t, r.step, out.string())
+                 : std::string("stopped by a second signal before the first row was written");
+    set_kill_time_summary(out / "summary.json", summary("interrupted", why, r).dump(2) + "\n");
+  };
   try {
     auto emit = [&](const StepRecord& r, bool final_row) {
       const std::string line = csv_row(r);
@@ -1052,6 +1065,12 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       prev = r;
       last = r;
       show_progress(r, final_row);
+      // Rendered at most twice a second, and for the first row.
+      const auto now = std::chrono::steady_clock::now();
+      if (r.step == 0 || now - kill_summary_time >= std::chrono::milliseconds(500)) {
+        kill_summary_time = now;
+        arm_kill_summary(r, true);
+      }
     };
 
     // Fixed dt: step k ends at t_origin + (k - k_origin) dt_run, the last one on
@@ -1117,6 +1136,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
         series_file = AppendFile(out / "series.csv", header);
         timing_file = AppendFile(out / "timing.csv", "step,t,wall_seconds,step_seconds,solver_seconds,list_seconds\n");
         write_file_atomic(out / "config.toml", to_toml(c));
+        arm_kill_summary(StepRecord{}, false);
         write_domain_surface(out);
         write_file_atomic(out / "summary.json", summary("running", "", StepRecord{}).dump(2) + "\n");
       }
@@ -1171,6 +1191,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       // The rows after the checkpoint (a run killed between checkpoints) are taken again.
       series_file = AppendFile(out / "series.csv", csv_up_to_step(out / "series.csv", k_done));
       timing_file = AppendFile(out / "timing.csv", csv_up_to_step(out / "timing.csv", k_done));
+      arm_kill_summary(last, true);
       write_file_atomic(out / "summary.json", summary("running", "", last).dump(2) + "\n");
     }
     const std::int64_t steps_to_run = c.run.max_steps > 0 ? std::min(n_total, c.run.max_steps) : n_total;
