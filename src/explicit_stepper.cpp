@@ -109,7 +109,8 @@ StepSummary ExplicitStepper::step(ParticleSet& particles, double dt) {
 
   std::vector<Vec3> x = x0, v;
   bool finite = std::isfinite(summary.f_before);
-  std::string failure = finite ? "explicit update produced non-finite positions" : "non-finite F at the start of the step";
+  std::string failure =
+      finite ? "explicit update produced non-finite positions" : "non-finite F at the start of the step";
   try {
     if (!finite) {
       // Nothing to update from.

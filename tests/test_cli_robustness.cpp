@@ -28,7 +28,8 @@ namespace {
 const fs::path kSource = OTFP_SOURCE_DIR;
 const fs::path kExamples = kSource / "examples";
 const std::string kExample = (kExamples / "sphere_dirichlet.toml").string();
-// A run of a few steps that takes well under a second.
+// A run of a few steps that takes well under a second (free space: no boundary to set up).
+const std::string kFast = (kExamples / "free_space_heat.toml").string();
 const std::string kShort = " --quiet --set run.max_steps=2 --set particles.n_inf=100";
 
 // Runs the real binary with `args` (shell words); returns its exit code,
@@ -77,13 +78,13 @@ TEST(CliRobustness, ConfigMustBeAReadableRegularFile) {
 // before any work (exit 2), not after the initial fill (exit 1).
 TEST(CliRobustness, OutMustBeAWritableNonEmptyPath) {
   std::string text;
-  EXPECT_EQ(run_binary("run " + kExample + " --out ''" + kShort, text), 2);
+  EXPECT_EQ(run_binary("run " + kFast + " --out ''" + kShort, text), 2);
   EXPECT_EQ(text.rfind("otfp: error: --out", 0), 0u) << text;
   EXPECT_TRUE(contains(text, "must be a non-empty path")) << text;
   EXPECT_EQ(lines(text), 1) << text;
   EXPECT_EQ(run_binary("run --resume ''", text), 2);
   EXPECT_EQ(text, "otfp: error: --resume = \"\": must be a non-empty path\n");
-  EXPECT_EQ(run_binary("sweep " + kExample + " --vary run.t_end=0.1 --out ''" + kShort, text), 2);
+  EXPECT_EQ(run_binary("sweep " + kFast + " --vary run.t_end=0.1 --out ''" + kShort, text), 2);
   EXPECT_EQ(text.rfind("otfp: error: --out", 0), 0u) << text;
   EXPECT_TRUE(contains(text, "must be a non-empty path")) << text;
 
@@ -92,7 +93,7 @@ TEST(CliRobustness, OutMustBeAWritableNonEmptyPath) {
   const fs::path file = base / "somefile";
   std::ofstream(file) << "not a directory\n";
   const fs::path below_file = file / "out";
-  EXPECT_EQ(run_binary("run " + kExample + " --out " + below_file.string() + kShort, text), 2);
+  EXPECT_EQ(run_binary("run " + kFast + " --out " + below_file.string() + kShort, text), 2);
   EXPECT_EQ(text.rfind("otfp: error: --out = \"" + below_file.string() + "\": ", 0), 0u) << text;
   EXPECT_EQ(lines(text), 1) << text;
   EXPECT_EQ(read_text(file), "not a directory\n");
@@ -101,9 +102,9 @@ TEST(CliRobustness, OutMustBeAWritableNonEmptyPath) {
     const fs::path ro = base / "readonly";
     fs::create_directories(ro);
     fs::permissions(ro, fs::perms::owner_read | fs::perms::owner_exec);
-    EXPECT_EQ(run_binary("run " + kExample + " --out " + (ro / "out").string() + kShort, text), 2);
+    EXPECT_EQ(run_binary("run " + kFast + " --out " + (ro / "out").string() + kShort, text), 2);
     EXPECT_EQ(lines(text), 1) << text;
-    EXPECT_EQ(run_binary("run " + kExample + " --out " + ro.string() + kShort, text), 2);
+    EXPECT_EQ(run_binary("run " + kFast + " --out " + ro.string() + kShort, text), 2);
     EXPECT_EQ(lines(text), 1) << text;
     fs::permissions(ro, fs::perms::owner_all);
     EXPECT_TRUE(fs::is_empty(ro));
@@ -117,12 +118,12 @@ TEST(CliRobustness, OutMustBeAWritableNonEmptyPath) {
 TEST(CliRobustness, OutputDirectoryDiscipline) {
   const fs::path dir = fresh_dir("robust_discipline");
   std::string text;
-  ASSERT_EQ(run_binary("run " + kExample + " --out " + dir.string() + kShort, text), 0) << text;
+  ASSERT_EQ(run_binary("run " + kFast + " --out " + dir.string() + kShort, text), 0) << text;
   EXPECT_FALSE(fs::exists(dir / ".otfp.lock")) << "the lock is removed at the end";
   const std::string summary = read_text(dir / "summary.json");
 
   // Again into the same directory: refused, nothing touched.
-  EXPECT_EQ(run_binary("run " + kExample + " --out " + dir.string() + kShort, text), 2);
+  EXPECT_EQ(run_binary("run " + kFast + " --out " + dir.string() + kShort, text), 2);
   EXPECT_EQ(text.rfind("otfp: error: --out = \"" + dir.string() + "\": ", 0), 0u) << text;
   EXPECT_TRUE(contains(text, "--overwrite") && contains(text, "--resume")) << text;
   EXPECT_EQ(lines(text), 1) << text;
@@ -138,7 +139,7 @@ TEST(CliRobustness, OutputDirectoryDiscipline) {
   std::ofstream(dir / "particles_00077.vtp") << "stale snapshot\n";
   std::ofstream(dir / "summary.json.tmp4242") << "stale temporary\n";
   std::ofstream(dir / "particles.csv") << "not an otfp output name\n";
-  ASSERT_EQ(run_binary("run " + kExample + " --out " + dir.string() + kShort + " --overwrite", text), 0) << text;
+  ASSERT_EQ(run_binary("run " + kFast + " --out " + dir.string() + kShort + " --overwrite", text), 0) << text;
   EXPECT_EQ(read_text(dir / "notes.txt"), "mine\n");
   EXPECT_TRUE(fs::exists(dir / "particles.csv"));
   EXPECT_FALSE(fs::exists(dir / "particles_00077.vtp"));
@@ -152,7 +153,7 @@ TEST(CliRobustness, OutputDirectoryDiscipline) {
     const int fd = ::open((dir / ".otfp.lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
     ASSERT_GE(fd, 0);
     ASSERT_EQ(::flock(fd, LOCK_EX | LOCK_NB), 0);
-    EXPECT_EQ(run_binary("run " + kExample + " --out " + dir.string() + kShort + " --overwrite", text), 2);
+    EXPECT_EQ(run_binary("run " + kFast + " --out " + dir.string() + kShort + " --overwrite", text), 2);
     EXPECT_EQ(text.rfind("otfp: error: --out = \"" + dir.string() + "\": ", 0), 0u) << text;
     EXPECT_TRUE(contains(text, "another otfp run")) << text;
     EXPECT_EQ(lines(text), 1) << text;
@@ -169,7 +170,7 @@ TEST(CliRobustness, OutputDirectoryDiscipline) {
   // A non-empty directory without an earlier run is fine.
   fs::create_directories(dir);
   std::ofstream(dir / "notes.txt") << "mine\n";
-  EXPECT_EQ(run_binary("run " + kExample + " --out " + dir.string() + kShort, text), 0) << text;
+  EXPECT_EQ(run_binary("run " + kFast + " --out " + dir.string() + kShort, text), 0) << text;
   fs::remove_all(dir);
 }
 
@@ -177,7 +178,7 @@ TEST(CliRobustness, OutputDirectoryDiscipline) {
 TEST(CliRobustness, SweepRerunsIntoItsDirectory) {
   const fs::path dir = fresh_dir("robust_sweep");
   std::string text;
-  const std::string args = "sweep " + kExample + " --vary run.max_steps=1,2 --out " + dir.string() +
+  const std::string args = "sweep " + kFast + " --vary run.max_steps=1,2 --out " + dir.string() +
                            " --set particles.n_inf=100 --quiet";
   for (int pass = 0; pass < 2; ++pass) {
     SCOPED_TRACE(pass);

@@ -358,8 +358,9 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
         for (const char* k : kResumeKeys) allowed = allowed || key == k;
         if (!allowed)
           return error(err,
-                       "--set " + escaped(set) + ": cannot change on --resume (only run.t_end, run.max_steps, run.vtk_interval, "
-                                        "run.checkpoint_interval, run.threads)",
+                       "--set " + escaped(set) +
+                           ": cannot change on --resume (only run.t_end, run.max_steps, run.vtk_interval, "
+                           "run.checkpoint_interval, run.threads)",
                        kUsage);
       }
       config = (std::filesystem::path(resume_dir) / "config.toml").string();

@@ -42,10 +42,10 @@ struct KillTimeState {
   std::string summary[2];
   std::atomic<int> summary_slot{-1};            // the slot that is complete, -1: none
 };
-KillTimeState& kill_state() {
-  static KillTimeState s;
-  return s;
-}
+// At namespace scope, not a function's static: the handler must not be the
+// first to touch it (a guarded initialisation is not async-signal-safe).
+KillTimeState g_kill_state;
+KillTimeState& kill_state() { return g_kill_state; }
 
 // Restores a write_file_atomic's "not writing" on every way out.
 struct WritingMark {
