@@ -3,6 +3,8 @@
 #include <string>
 #include <cmath>
 
+#include <fmt/format.h>
+
 #include "otfp/explicit_stepper.hpp"
 
 namespace otfp {
@@ -56,33 +58,63 @@ void ExplicitStepper::add_external(const std::vector<Vec3>& x, const std::vector
 
 StepSummary ExplicitStepper::step(ParticleSet& particles, double dt) {
   require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
+  require(particles.dim() == dim_, "particles dim", particles.dim(),
+          "must equal the stepper's dim " + std::to_string(dim_));
   const auto t0 = std::chrono::steady_clock::now();
   StepSummary summary;
   summary.dt = dt;
-  if (options_.sort_particles && !particles.empty()) {
-    // Memory locality for the pair sweeps; ids are kept.
+  summary.iterations = 1;
+  auto reject = [&](const std::string& why) {
+    summary.accepted = false;
+    summary.reason = TerminationReason::NonFinite;
+    summary.message = why;
+    summary.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return summary;
+  };
+  // What the implicit stepper's objective refuses (its F is not finite there):
+  // the step is rejected before anything is touched.
+  const std::size_t n = particles.size();
+  for (std::size_t p = 0; p < n; ++p) {
+    const double mp = particles.masses()[p], sp = particles.widths()[p];
+    if (!(std::isfinite(mp) && mp > 0.0))
+      return reject(fmt::format("particle {}: mass = {}: must be finite and > 0", particles.ids()[p], mp));
+    if (!(std::isfinite(sp) && sp > 0.0))
+      return reject(fmt::format("particle {}: width s = {}: must be finite and > 0", particles.ids()[p], sp));
+  }
+  // Work on copies in spatial order (memory locality for the pair sweeps): a
+  // rejected step neither moves nor reorders the particles.
+  std::vector<std::size_t> order(n);
+  for (std::size_t i = 0; i < n; ++i) order[i] = i;
+  if (options_.sort_particles && n > 0) {
     double s_max = 0.0;
     for (double v : particles.widths()) s_max = std::max(s_max, v);
-    particles.sort_spatially(cutoff_radius(s_max, options_.neighbor.kernel_tolerance));
+    order = spatial_order(particles.positions(), dim_, cutoff_radius(s_max, options_.neighbor.kernel_tolerance));
   }
-  const auto& x0 = particles.positions();
-  const auto& s = particles.widths();
+  std::vector<Vec3> x0(n);
+  std::vector<double> s(n), m(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    x0[i] = particles.positions()[order[i]];
+    s[i] = particles.widths()[order[i]];
+    m[i] = particles.masses()[order[i]];
+  }
   functional_.set_dt(dt);
-  functional_.set_reference(x0, s, particles.masses());
+  functional_.set_reference(x0, s, m);
   const int builds_before = functional_.list().build_count();
   const double list_seconds_before = functional_.list().build_seconds();
   const std::uint64_t pairs_before = functional_.entropy().pair_evaluations();
   functional_.rebuild_list(x0, s);  // particles may have moved in memory
   summary.parts_before = functional_.evaluate(x0, s, nullptr);
-  add_external(x0, particles.masses(), summary.parts_before);
+  add_external(x0, m, summary.parts_before);
   summary.f_before = summary.parts_before.total();
 
-  const std::size_t n = x0.size();
   std::vector<Vec3> x = x0, v;
-  bool finite = true;
-  std::string failure = "explicit update produced non-finite positions";
+  bool finite = std::isfinite(summary.f_before);
+  std::string failure =
+      finite ? "explicit update produced non-finite positions" : "non-finite F at the start of the step";
   try {
-    if (options_.scheme == ExplicitScheme::Rk4Force27) {
+    if (!finite) {
+      // Nothing to update from.
+    } else if (options_.scheme == ExplicitScheme::Rk4Force27) {
       std::vector<Vec3> k1, k2, k3, k4, tmp(n);
       velocity(x0, s, k1);
       for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + 0.5 * dt * k1[p];
@@ -100,20 +132,24 @@ StepSummary ExplicitStepper::step(ParticleSet& particles, double dt) {
     }
     for (const auto& p : x) finite = finite && p.allFinite();
     if (finite) {
-      functional_.set_reference(x0, s, particles.masses());
+      functional_.set_reference(x0, s, m);
       summary.parts_after = functional_.evaluate(x, s, nullptr);
-      add_external(x, particles.masses(), summary.parts_after);
+      add_external(x, m, summary.parts_after);
       summary.f_after = summary.parts_after.total();
+      if (!std::isfinite(summary.f_after)) {
+        finite = false;
+        failure = "non-finite F after the explicit update";
+      }
     }
   } catch (const std::runtime_error& e) {
     // An RK4 stage that diverged reaches the neighbour search first.
     finite = false;
     failure = std::string("explicit update diverged: ") + e.what();
   }
-  summary.iterations = 1;
   if (finite) {
     const Periodicity& per = functional_.periodicity();
     for (auto& p : x) p = per.wrap(p);
+    particles.reorder(order);
     particles.positions() = std::move(x);
     summary.accepted = true;
     summary.reason = TerminationReason::Converged;

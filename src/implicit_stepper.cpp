@@ -2,6 +2,7 @@
 #include <cmath>
 #include <algorithm>
 #include <limits>
+#include <string>
 
 #include "otfp/implicit_stepper.hpp"
 
@@ -487,6 +488,8 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
 StepSummary ImplicitStepper::step(ParticleSet& particles, double dt, double max_error) {
   require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
   require(!(max_error <= 0.0), "max_error", max_error, "must be > 0 (infinity: no error control)");
+  require(particles.dim() == dim_, "particles dim", particles.dim(),
+          "must equal the stepper's dim " + std::to_string(dim_));
   const auto t0 = std::chrono::steady_clock::now();
   StepSummary summary;
   summary.dt = dt;

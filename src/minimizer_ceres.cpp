@@ -6,9 +6,12 @@
 #include <ceres/gradient_problem.h>
 #include <ceres/gradient_problem_solver.h>
 #include <ceres/iteration_callback.h>
+#include <glog/logging.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -103,6 +106,19 @@ class CeresMonitor final : public ceres::IterationCallback {
   TerminationReason stop_ = TerminationReason::Failure;
 };
 
+// Ceres logs through glog, and glog writes to stderr until the program calls
+// google::InitGoogleLogging (e.g. "Restarting non-linear conjugate gradients"
+// at WARNING level even with logging_type = SILENT). A library must not print:
+// unless the host program set glog up itself or chose a level through the
+// GLOG_minloglevel environment variable, only FATAL messages get through.
+void quiet_glog_once() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    if (google::IsGoogleLoggingInitialized() || std::getenv("GLOG_minloglevel") != nullptr) return;
+    if (FLAGS_minloglevel < google::GLOG_FATAL) FLAGS_minloglevel = google::GLOG_FATAL;
+  });
+}
+
 ceres::LineSearchDirectionType direction(Algorithm a) {
   switch (a) {
     case Algorithm::Bfgs: return ceres::BFGS;
@@ -115,6 +131,7 @@ ceres::LineSearchDirectionType direction(Algorithm a) {
 
 BackendResult run_ceres(TrackedObjective& objective, std::vector<double>& z, const StartPoint& start,
                         const MinimizerOptions& options) {
+  quiet_glog_once();
   ceres::GradientProblemSolver::Options co;
   co.line_search_direction_type = direction(options.algorithm);
   co.line_search_type = ceres::WOLFE;  // required by (L-)BFGS, best for CG

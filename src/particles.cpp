@@ -93,6 +93,8 @@ std::ptrdiff_t ParticleSet::index_of(ParticleId id) const {
 }
 
 void ParticleSet::set_beta(std::size_t p, double beta) {
+  require(p < size(), "set_beta: particle index", std::to_string(p),
+          "must be < the number of particles (" + std::to_string(size()) + ")");
   require(std::isfinite(beta) && beta > 0.0, "beta", beta, "must be finite and > 0");
   s_[p] = 1.0 / std::sqrt(beta);
 }
@@ -105,6 +107,14 @@ void ParticleSet::set_uniform_beta(double beta) {
 void ParticleSet::reorder(const std::vector<std::size_t>& order) {
   require(order.size() == size(), "reorder: order size", static_cast<double>(order.size()),
           "must equal the number of particles");
+  // A permutation of 0..n-1: every index in range and none twice.
+  std::vector<char> seen(order.size(), 0);
+  for (std::size_t i : order) {
+    require(i < order.size(), "reorder: index", std::to_string(i),
+            "must be < the number of particles (" + std::to_string(order.size()) + ")");
+    require(!seen[i], "reorder: index", std::to_string(i), "appears twice (order must be a permutation)");
+    seen[i] = 1;
+  }
   auto permute = [&](auto& v) {
     std::remove_reference_t<decltype(v)> out;
     out.reserve(v.size());

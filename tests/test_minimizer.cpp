@@ -527,3 +527,28 @@ TEST(Minimizer, DefaultStoppingMeasureIsMaxNorm) {
 }
 
 }  // namespace
+
+namespace {
+
+// Ceres logs through glog, which writes warnings (e.g. nonlinear CG restarts)
+// to stderr unless told otherwise: a library solve must print nothing.
+TEST(Minimizer, CeresSolvesPrintNothingOnStderr) {
+  const std::size_t n = 50;
+  for (Algorithm a : {Algorithm::NonlinearCg, Algorithm::Lbfgs, Algorithm::Bfgs}) {
+    SCOPED_TRACE(label(Backend::Ceres, a));
+    for (int variant = 0; variant < 2; ++variant) {
+      TestObjective obj(n, extended_rosenbrock(n));
+      if (variant == 1) obj.finite = [](const double* z) { return z[0] < 0.0; };  // refuses points beyond
+      std::vector<double> z = rosenbrock_start(n);
+      MinimizerOptions o = make_options(Backend::Ceres, a, 1e-10);
+      o.max_iterations = 300;
+      ::testing::internal::CaptureStderr();
+      const MinimizerSummary s = otfp::minimize(obj, z, o);
+      const std::string printed = ::testing::internal::GetCapturedStderr();
+      EXPECT_EQ(printed, "") << "variant " << variant;
+      EXPECT_GT(s.iterations, 0);
+    }
+  }
+}
+
+}  // namespace

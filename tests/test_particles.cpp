@@ -1,5 +1,8 @@
 #include <gtest/gtest.h>
 
+#include <string>
+#include <vector>
+
 #include "otfp/particles.hpp"
 
 using namespace otfp;
@@ -145,4 +148,34 @@ TEST(ParticleSet, AssignInPlaceKeepsTheArrays) {
   otfp::ParticleSet d(3);
   for (int i = 0; i < 5; ++i) d.add(otfp::Vec3::Zero(), 0.1, 1.0);
   EXPECT_THROW(a.assign_in_place(d), otfp::InvalidArgument);
+}
+
+TEST(ParticleSet, SetBetaRejectsIndexOutOfRange) {
+  ParticleSet ps(2);
+  ps.add(Vec3::Zero(), 0.5, 1.0);
+  ps.add(Vec3(1.0, 0.0, 0.0), 0.5, 1.0);
+  EXPECT_THROW(ps.set_beta(2, 4.0), InvalidArgument);
+  EXPECT_THROW(ps.set_beta(1000000, 4.0), InvalidArgument);
+  EXPECT_EQ(ps.widths(), std::vector<double>({0.5, 0.5})) << "a refused call changes nothing";
+  try {
+    ps.set_beta(7, 4.0);
+  } catch (const InvalidArgument& e) {
+    EXPECT_NE(std::string(e.what()).find("7"), std::string::npos) << e.what();
+  }
+}
+
+TEST(ParticleSet, ReorderRejectsOutOfRangeAndNonPermutations) {
+  ParticleSet ps(2);
+  for (int i = 0; i < 3; ++i) ps.add(Vec3(i, 0.0, 0.0), 0.1 + i, 1.0 + i);
+  const std::vector<Vec3> x = ps.positions();
+  const std::vector<ParticleId> ids = ps.ids();
+  EXPECT_THROW(ps.reorder({0, 1, 3}), InvalidArgument);
+  EXPECT_THROW(ps.reorder({0, 0, 0}), InvalidArgument);
+  EXPECT_THROW(ps.reorder({2, 1, 2}), InvalidArgument);
+  EXPECT_EQ(ps.positions(), x) << "a refused reorder changes nothing";
+  EXPECT_EQ(ps.ids(), ids);
+  for (ParticleId id : ids) EXPECT_EQ(ps.index_of(id), static_cast<std::ptrdiff_t>(id));
+  ps.reorder({2, 0, 1});
+  EXPECT_EQ(ps.ids(), std::vector<ParticleId>({2, 0, 1}));
+  EXPECT_EQ(ps.index_of(2), 0);
 }

@@ -341,3 +341,21 @@ TEST(Simulation, FailedProjectionRestoresHistoryAndCarries) {
   EXPECT_TRUE(same_state(b->particles(), a->particles()));
   std::filesystem::remove(saved);
 }
+
+// A particle set of another dimension is refused by start() with one line
+// naming both dimensions (the domain is 2-d here).
+TEST(Simulation, StartRefusesParticlesOfAnotherDimension) {
+  Disc disc(false);
+  auto sim = disc.make();
+  ParticleSet ps3(3);
+  ps3.add(Vec3(0.1, 0.1, 0.1), disc.pp.width_s, disc.options.particle_mass);
+  try {
+    sim->start(ps3);
+    FAIL() << "a 3-d particle set was started in a 2-d domain";
+  } catch (const InvalidArgument& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("dim = 3"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("dim 2"), std::string::npos) << msg;
+    EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+  }
+}

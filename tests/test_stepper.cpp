@@ -4,6 +4,11 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
+#include <limits>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "otfp/explicit_stepper.hpp"
 #include "otfp/external_potential.hpp"
@@ -468,5 +473,94 @@ TEST(Fractional, SourceChangesExpectedMassByExponential) {
     // Each step is a sum of independent Bernoulli draws; the variance over 5 steps is below n (e^{|s|t}) g(1-g) per step summed: bound it by expected.
     const double sigma = std::sqrt(expected);
     EXPECT_NEAR(static_cast<double>(ps.size()), expected, 3.0 * sigma) << "rate " << rate;
+  }
+}
+
+TEST(Steppers, RefuseParticlesOfAnotherDimension) {
+  ParticleSet ps = random_cloud(2, 10, 0.0, 1.0, 0.1, 0.0, 0.1, 3);
+  const ParticleSet before = ps;
+  ImplicitStepper implicit3(3, ImplicitOptions{});
+  ExplicitStepper explicit3(3, ExplicitOptions{});
+  for (int which = 0; which < 2; ++which) {
+    SCOPED_TRACE(which == 0 ? "implicit" : "explicit");
+    try {
+      if (which == 0)
+        implicit3.step(ps, 0.01);
+      else
+        explicit3.step(ps, 0.01);
+      ADD_FAILURE() << "a 2-d particle set was stepped by a 3-d stepper";
+    } catch (const InvalidArgument& e) {
+      const std::string msg = e.what();
+      EXPECT_NE(msg.find("dim = 2"), std::string::npos) << msg;
+      EXPECT_NE(msg.find("3"), std::string::npos) << msg;
+      EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+    }
+    EXPECT_EQ(ps.positions(), before.positions());
+    EXPECT_EQ(ps.ids(), before.ids());
+  }
+}
+
+// The explicit stepper refuses what the implicit one refuses: non-positive or
+// non-finite masses and widths, and a non-finite F. The step is rejected and
+// the particles are left exactly as they were (not even reordered).
+TEST(Steppers, BadMassesWidthsOrNonFiniteFAreRejectedAndStateKept) {
+  const int dim = 2;
+  using Spoil = std::function<void(ParticleSet&)>;
+  const std::vector<std::pair<std::string, Spoil>> cases = {
+      {"negative mass", [](ParticleSet& p) { p.masses()[3] = -p.masses()[3]; }},
+      {"zero mass", [](ParticleSet& p) { p.masses()[5] = 0.0; }},
+      {"infinite mass", [](ParticleSet& p) { p.masses()[1] = std::numeric_limits<double>::infinity(); }},
+      {"NaN mass", [](ParticleSet& p) { p.masses()[0] = std::nan(""); }},
+      {"negative width", [](ParticleSet& p) { p.widths()[2] = -p.widths()[2]; }},
+      {"zero width", [](ParticleSet& p) { p.widths()[7] = 0.0; }},
+      {"NaN width", [](ParticleSet& p) { p.widths()[4] = std::nan(""); }},
+  };
+  for (ExplicitScheme scheme :
+       {ExplicitScheme::EulerForce27, ExplicitScheme::Rk4Force27, ExplicitScheme::EulerExactGradient}) {
+    for (const auto& [name, spoil] : cases) {
+      SCOPED_TRACE(to_string(scheme) + ": " + name);
+      ParticleSet ps = ball_cloud(dim, 20, 0.5, 0.2, 8);
+      spoil(ps);
+      const ParticleSet before = ps;
+      ExplicitOptions eo;
+      eo.scheme = scheme;
+      ExplicitStepper st(dim, eo);
+      const StepSummary s = st.step(ps, 1e-4);
+      EXPECT_FALSE(s.accepted);
+      EXPECT_EQ(s.reason, TerminationReason::NonFinite);
+      EXPECT_FALSE(s.message.empty());
+      EXPECT_EQ(ps.ids(), before.ids());
+      for (std::size_t i = 0; i < ps.size(); ++i) {
+        EXPECT_EQ(ps.positions()[i], before.positions()[i]);
+        EXPECT_TRUE(ps.widths()[i] == before.widths()[i] || std::isnan(before.widths()[i]));
+      }
+      // The implicit stepper, for comparison, rejects the same input the same way.
+      if (scheme == ExplicitScheme::EulerForce27) {
+        ParticleSet pi = before;
+        ImplicitOptions io;
+        io.max_halvings = 0;
+        const StepSummary si = ImplicitStepper(dim, io).step(pi, 1e-4);
+        EXPECT_FALSE(si.accepted);
+        EXPECT_EQ(si.reason, TerminationReason::NonFinite);
+        EXPECT_EQ(pi.ids(), before.ids());
+      }
+    }
+    // A non-finite F (here the external potential) with finite forces.
+    SCOPED_TRACE(to_string(scheme) + ": non-finite F");
+    ParticleSet ps = ball_cloud(dim, 20, 0.5, 0.2, 8);
+    const ParticleSet before = ps;
+    ExplicitOptions eo;
+    eo.scheme = scheme;
+    ExplicitStepper st(dim, eo);
+    st.set_external_potential([](const Vec3&, Vec3* g) {
+      if (g) g->setZero();
+      return std::nan("");
+    });
+    const StepSummary s = st.step(ps, 1e-4);
+    EXPECT_FALSE(s.accepted);
+    EXPECT_EQ(s.reason, TerminationReason::NonFinite);
+    EXPECT_FALSE(s.message.empty());
+    EXPECT_EQ(ps.positions(), before.positions());
+    EXPECT_EQ(ps.ids(), before.ids());
   }
 }

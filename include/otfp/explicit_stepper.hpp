@@ -26,8 +26,12 @@ struct ExplicitOptions {
 class ExplicitStepper {
  public:
   ExplicitStepper(int dim, ExplicitOptions options, Barrier barrier = {}, Periodicity periodicity = {});
-  // Widths stay fixed. A step that produces non-finite positions is rejected
-  // (the particles may have been reordered, ids kept, but not moved).
+  // Widths stay fixed. Throws InvalidArgument for dt <= 0 and for particles
+  // of another dimension. As in ImplicitStepper, a step from non-positive or
+  // non-finite masses or widths, with a non-finite F before or after, or that
+  // produces non-finite positions is rejected (accepted == false, reason
+  // NonFinite) and leaves the particles exactly as they were; an accepted
+  // step may also reorder them (sort_particles; ids kept).
   StepSummary step(ParticleSet& particles, double dt);
   // The external potential per unit mass: its force -grad U joins the
   // velocity of every scheme, its energy sum m U the barrier part of F.

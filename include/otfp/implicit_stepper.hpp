@@ -39,7 +39,8 @@ struct ImplicitOptions {
 class ImplicitStepper {
  public:
   ImplicitStepper(int dim, ImplicitOptions options, Barrier barrier = {}, Periodicity periodicity = {});
-  // One implicit step of length dt from the state in `particles`. On failure
+  // One implicit step of length dt from the state in `particles` (throws
+  // InvalidArgument for particles of another dimension). On failure
   // (after max_halvings retries) the particles are left exactly as they were.
   // On success they may also be reordered (sort_particles); ids are kept.
   // max_error: a step whose error_estimate exceeds it is not taken

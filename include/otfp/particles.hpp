@@ -57,6 +57,7 @@ class ParticleSet {
   const std::vector<ParticleId>& ids() const { return id_; }
 
   double beta(std::size_t p) const { return 1.0 / (s_[p] * s_[p]); }
+  // Throws InvalidArgument unless p < size() and beta is finite and > 0.
   void set_beta(std::size_t p, double beta);
   double total_mass() const;
   ParticleId next_id() const { return next_id_; }
@@ -66,7 +67,8 @@ class ParticleSet {
   void set_next_id(ParticleId next);
 
   // Reorders the particles: new index i holds the particle that had index order[i].
-  // Ids move with their particles.
+  // Ids move with their particles. Throws InvalidArgument (and changes
+  // nothing) unless order is a permutation of 0, ..., size() - 1.
   void reorder(const std::vector<std::size_t>& order);
   // Reorders the particles by spatial_order(); ids are kept.
   void sort_spatially(double cell_size) { reorder(spatial_order(x_, dim_, cell_size)); }

@@ -1,10 +1,16 @@
 #include "otfp_app/config.hpp"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <charconv>
+#include <cerrno>
 #include <cmath>
-#include <fstream>
+#include <cstring>
 #include <functional>
 #include <initializer_list>
 #include <limits>
@@ -47,7 +53,38 @@ std::string shown(double v) { return format_double(v); }
 std::string shown(const Vec3& v) {
   return "[" + format_double(v[0]) + ", " + format_double(v[1]) + ", " + format_double(v[2]) + "]";
 }
-std::string quoted(const std::string& s) { return "\"" + s + "\""; }
+// Control characters as escapes (\n, \t, \r, \xHH), so that an echoed value
+// keeps an error message on one line and shows what was given.
+std::string escaped(const std::string& s) {
+  std::string out;
+  for (const char ch : s) {
+    const auto u = static_cast<unsigned char>(ch);
+    if (ch == '\n')
+      out += "\\n";
+    else if (ch == '\t')
+      out += "\\t";
+    else if (ch == '\r')
+      out += "\\r";
+    else if (u < 0x20 || u == 0x7f)
+      out += fmt::format("\\x{:02x}", u);
+    else
+      out += ch;
+  }
+  return out;
+}
+bool has_control_character(const std::string& s) {
+  return std::any_of(s.begin(), s.end(), [](char ch) {
+    const auto u = static_cast<unsigned char>(ch);
+    return u < 0x20 || u == 0x7f;
+  });
+}
+std::string quoted(const std::string& s) {
+  // Appended piece by piece: GCC 12 warns (-Wrestrict, a false positive) on "\"" + t + "\"" at -O3.
+  std::string out(1, '"');
+  out.append(escaped(s));
+  out.push_back('"');
+  return out;
+}
 std::string shown(const Value& v) {
   if (const auto* i = std::get_if<std::int64_t>(&v)) return std::to_string(*i);
   if (const auto* d = std::get_if<double>(&v)) return shown(*d);
@@ -457,9 +494,14 @@ std::string unknown_key_rule(const std::string& prefix, const std::string& key) 
 }
 
 std::string format_node(const toml::node& n) {
-  if (auto s = n.as_string()) return "\"" + s->get() + "\"";
+  if (auto s = n.as_string()) return quoted(s->get());
   if (auto i = n.as_integer()) return std::to_string(i->get());
-  if (auto f = n.as_floating_point()) return format_double(f->get());
+  if (auto f = n.as_floating_point()) {
+    // A float stays a float in messages: 3.0, not 3 (which reads as an integer).
+    std::string t = format_double(f->get());
+    if (t.find_first_not_of("-0123456789") == std::string::npos) t += ".0";
+    return t;
+  }
   if (auto b = n.as_boolean()) return b->get() ? "true" : "false";
   if (auto a = n.as_array()) {
     std::string out = "[";
@@ -481,9 +523,10 @@ std::string kind_rule(const Field& spec) {
   return "invalid";
 }
 
-// Checks one value against its key's kind; `key` is the display name.
-void check_kind(const toml::node& n, const Field& spec, const std::string& key) {
-  const std::string shown = format_node(n);
+// Checks one value against its key's kind; `key` is the display name,
+// `given` the value as the user wrote it (--set), if known.
+void check_kind(const toml::node& n, const Field& spec, const std::string& key, const std::string& given = "") {
+  const std::string shown = given.empty() ? format_node(n) : given;
   switch (spec.kind) {
     case Kind::Int:
       if (!n.is_integer()) throw ConfigError(key, shown, kind_rule(spec));
@@ -581,8 +624,9 @@ std::vector<std::string> split_path(std::string path) {
 toml::table& select_entry(toml::array& arr, const std::string& sel, const std::string& name_key,
                           const std::string& array_key, const std::string& assignment, std::size_t& index) {
   if (all_digits(sel)) {
-    const std::size_t i = std::stoul(sel);
-    if (i > arr.size())
+    std::size_t i = 0;
+    const auto [end, ec] = std::from_chars(sel.data(), sel.data() + sel.size(), i);
+    if (ec != std::errc() || end != sel.data() + sel.size() || i > arr.size())
       throw ConfigError(array_key + "[" + sel + "]", assignment,
                         fmt::format("index out of range (there are {} entries; {} appends one)", arr.size(),
                                     arr.size()));
@@ -610,22 +654,55 @@ toml::array& array_of_tables(toml::table& parent, const std::string& key, const 
   return *a;
 }
 
+// A --set key: section.key, boundary.<index or patch>.key,
+// domain.subpatch.<index or name>.key, with boundary[...] and subpatch[...]
+// as the bracket forms; segments of letters, digits, '_', '+' and '-'.
+bool well_formed_key(const std::string& path) {
+  const auto word = [](char ch) {
+    return (ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') || (ch >= '0' && ch <= '9') || ch == '_' ||
+           ch == '+' || ch == '-';
+  };
+  std::size_t i = 0;
+  for (;;) {
+    const std::size_t start = i;
+    while (i < path.size() && word(path[i])) ++i;
+    if (i == start) return false;
+    if (i < path.size() && path[i] == '[') {
+      const std::string seg = path.substr(start, i - start);
+      if (seg != "boundary" && seg != "subpatch") return false;
+      const std::size_t sel = ++i;
+      while (i < path.size() && word(path[i])) ++i;
+      if (i == sel || i == path.size() || path[i] != ']') return false;
+      ++i;
+    }
+    if (i == path.size()) return true;
+    if (path[i] != '.') return false;
+    ++i;
+  }
+}
+
 void apply_override(toml::table& root, const std::string& assignment) {
   const auto eq = assignment.find('=');
   if (eq == std::string::npos || eq == 0)
-    throw ConfigError("--set", "\"" + assignment + "\"", "must have the form key=value");
+    throw ConfigError("--set", quoted(assignment), "must have the form key=value");
   const std::string path = assignment.substr(0, eq);
   const std::string text = assignment.substr(eq + 1);
+  if (!well_formed_key(path))
+    throw ConfigError(escaped(path), quoted(text),
+                      "malformed key (the forms are section.key, boundary.<index or patch>.key or "
+                      "boundary[<index>].key, domain.subpatch.<index or name>.key)");
+  if (has_control_character(text))
+    throw ConfigError(path, quoted(text), "must not contain control characters (newline, tab, ...)");
   const std::vector<std::string> seg = split_path(path);
   for (const std::string& s : seg)
-    if (s.empty()) throw ConfigError(path, "\"" + text + "\"", "malformed key path");
+    if (s.empty()) throw ConfigError(path, quoted(text), "malformed key path");
 
   toml::table* target = nullptr;
   std::string spec_path, display;
   const std::string& section = seg[0];
   if (section == "boundary") {
     if (seg.size() != 3)
-      throw ConfigError(path, "\"" + text + "\"", "must be boundary.<index or patch name>.<key>");
+      throw ConfigError(path, quoted(text), "must be boundary.<index or patch name>.<key>");
     std::size_t idx = 0;
     target = &select_entry(array_of_tables(root, "boundary", "boundary"), seg[1], "patch", "boundary", text, idx);
     spec_path = "boundary[]." + seg[2];
@@ -636,25 +713,25 @@ void apply_override(toml::table& root, const std::string& assignment) {
     if (!sec) throw ConfigError(section, format_node(*root.get(section)), "must be a table");
     if (section == "domain" && seg.size() >= 2 && seg[1] == "subpatch") {
       if (seg.size() != 4)
-        throw ConfigError(path, "\"" + text + "\"", "must be domain.subpatch.<index or name>.<key>");
+        throw ConfigError(path, quoted(text), "must be domain.subpatch.<index or name>.<key>");
       std::size_t idx = 0;
       target = &select_entry(array_of_tables(*sec, "subpatch", "domain.subpatch"), seg[2], "name",
                              "domain.subpatch", text, idx);
       spec_path = "domain.subpatch[]." + seg[3];
       display = fmt::format("domain.subpatch[{}].{}", idx, seg[3]);
     } else {
-      if (seg.size() != 2) throw ConfigError(path, "\"" + text + "\"", "unknown key");
+      if (seg.size() != 2) throw ConfigError(path, quoted(text), "unknown key");
       target = sec;
       spec_path = path;
       display = path;
     }
   } else {
-    throw ConfigError(path, "\"" + text + "\"", "unknown section (allowed: " + join(kSections) + ")");
+    throw ConfigError(path, quoted(text), "unknown section (allowed: " + join(kSections) + ")");
   }
   const Field* spec = find_spec(spec_path);
   if (!spec) {
     const std::string prefix = spec_path.substr(0, spec_path.rfind('.') + 1);
-    throw ConfigError(display, "\"" + text + "\"", unknown_key_rule(prefix, spec_path.substr(prefix.size())));
+    throw ConfigError(display, quoted(text), unknown_key_rule(prefix, spec_path.substr(prefix.size())));
   }
   const std::string key = spec_path.substr(spec_path.rfind('.') + 1);
 
@@ -668,11 +745,12 @@ void apply_override(toml::table& root, const std::string& assignment) {
   }
   if (!ok || !parsed.contains("v")) {
     if (spec->kind != Kind::String)
-      throw ConfigError(display, "\"" + text + "\"", "not a TOML value; " + kind_rule(*spec));
+      throw ConfigError(display, quoted(text), "not a TOML value; " + kind_rule(*spec));
     parsed = toml::table{{"v", text}};
   }
   const toml::node& n = *parsed.get("v");
-  check_kind(n, *spec, display);
+  // Numbers are echoed as written (3.0, 1e3), not as read back.
+  check_kind(n, *spec, display, spec->kind == Kind::Int || spec->kind == Kind::Float ? text : "");
   switch (spec->kind) {
     case Kind::Int: target->insert_or_assign(key, n.as_integer()->get()); break;
     case Kind::Float: target->insert_or_assign(key, n.value<double>().value()); break;
@@ -1010,11 +1088,39 @@ const char* type_name(Kind k) {
 }  // namespace
 
 Config parse_config_file(const std::filesystem::path& file, const std::vector<std::string>& overrides) {
-  std::ifstream in(file, std::ios::binary);
-  if (!in) throw ConfigError("config", "\"" + file.string() + "\"", "cannot open the configuration file");
-  std::ostringstream text;
-  text << in.rdbuf();
-  return parse_text(text.str(), overrides, file.string(), fs::absolute(file).parent_path());
+  // A directory, a device or a file that fails to read (/proc/self/mem) must
+  // not read as an empty configuration (all defaults): POSIX calls, whose
+  // errors are not swallowed as the stream's are.
+  const auto fail = [&](const std::string& why) {
+    return ConfigError("config", "cannot read CONFIG: " + file.string() + ": " + why);
+  };
+  const int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK);
+  if (fd < 0) throw fail(std::strerror(errno));
+  struct stat st {};
+  if (::fstat(fd, &st) != 0) {
+    const std::string why = std::strerror(errno);
+    ::close(fd);
+    throw fail(why);
+  }
+  if (!S_ISREG(st.st_mode)) {
+    ::close(fd);
+    throw fail(S_ISDIR(st.st_mode) ? "not a regular file (a directory)" : "not a regular file");
+  }
+  std::string text;
+  char buf[65536];
+  for (;;) {
+    const ssize_t n = ::read(fd, buf, sizeof buf);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      const std::string why = std::strerror(errno);
+      ::close(fd);
+      throw fail(why);
+    }
+    if (n == 0) break;
+    text.append(buf, static_cast<std::size_t>(n));
+  }
+  ::close(fd);
+  return parse_text(text, overrides, file.string(), fs::absolute(file).parent_path());
 }
 
 Config parse_config_string(std::string_view toml_text, const std::vector<std::string>& overrides,

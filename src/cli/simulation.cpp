@@ -294,13 +294,25 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   d.dt_explicit = pp.dt_explicit;
   const double dt0 = c.run.dt ? *c.run.dt : c.run.dt_factor * d.dt_explicit;
   const double steps = std::ceil(c.run.t_end / dt0 * (1.0 - 1e-12));
-  if (!(steps <= 1e9))
-    throw ConfigError(c.run.dt ? "run.dt" : "run.dt_factor", fmt::format("{}", c.run.dt ? *c.run.dt : c.run.dt_factor),
-                      fmt::format("gives {} steps to run.t_end (more than 1e9)", steps));
+  if (!(steps <= 1e9)) {
+    if (c.run.dt)
+      throw ConfigError("run.dt", fmt::format("{}", *c.run.dt),
+                        fmt::format("gives {} steps to run.t_end = {} (more than 1e9)", steps, c.run.t_end));
+    // dt comes from three keys; the message names them all with their values.
+    throw ConfigError("run.dt_factor", fmt::format("{}", c.run.dt_factor),
+                      fmt::format("dt = run.dt_factor dr^2 / physics.kappa = {} (physics.kappa = {}, dr = {}) gives {} "
+                                  "steps to run.t_end = {} (more than 1e9)",
+                                  dt0, c.physics.kappa, d.dr, steps, c.run.t_end));
+  }
   d.n_steps = std::max<std::int64_t>(1, static_cast<std::int64_t>(steps));
   d.dt = c.run.t_end / static_cast<double>(d.n_steps);
   d.steps_to_run = c.run.max_steps > 0 ? std::min(d.n_steps, c.run.max_steps) : d.n_steps;
   d.barrier_C = c.solver.barrier_stiffness ? *c.solver.barrier_stiffness : c.solver.barrier_factor / d.dt_explicit;
+  if (!c.solver.barrier_stiffness && !(std::isfinite(d.barrier_C) && d.barrier_C > 0.0))
+    throw ConfigError("solver.barrier_factor", fmt::format("{}", c.solver.barrier_factor),
+                      fmt::format("gives the barrier stiffness C = barrier_factor / dt_explicit = {} (dt_explicit = "
+                                  "dr^2 / physics.kappa = {}): must be finite and > 0",
+                                  d.barrier_C, d.dt_explicit));
 
   // Net Neumann inflow over [0, t_end] (f is the outward flux: inflow is -f).
   for (const PatchInfo& p : patches_)
@@ -1084,6 +1096,19 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
 
   StepRecord last;
   bool interrupted = false;
+  std::chrono::steady_clock::time_point kill_summary_time{};
+  // The summary.json a second signal leaves behind (kill_time_cleanup), from
+  // the last row written (`have_row`) or before the first one.
+  auto arm_kill_summary = [&](const StepRecord& r, bool have_row) {
+    if (!write || !options.stop_flag) return;
+    const std::string why =
+        have_row ? fmt::format("stopped by a second signal during a step after step {} (t = {}); the files are "
+                               "complete up to step {} at least; continue from the last checkpoint, if one was "
+                               "written, with: otfp run --resume {}",
+                               r.step, r.t, r.step, out.string())
+                 : std::string("stopped by a second signal before the first row was written");
+    set_kill_time_summary(out / "summary.json", summary("interrupted", why, r).dump(2) + "\n");
+  };
   try {
     auto emit = [&](const StepRecord& r, bool final_row) {
       const std::string line = csv_row(r);
@@ -1098,6 +1123,12 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       last = r;
       result.rows = true;
       show_progress(r, final_row);
+      // Rendered at most twice a second, and for the first row.
+      const auto now = std::chrono::steady_clock::now();
+      if (r.step == 0 || now - kill_summary_time >= std::chrono::milliseconds(500)) {
+        kill_summary_time = now;
+        arm_kill_summary(r, true);
+      }
     };
 
     // Fixed dt: step k ends at t_origin + (k - k_origin) dt_run, the last one on
@@ -1144,6 +1175,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
         series_file = AppendFile(out / "series.csv", header);
         timing_file = AppendFile(out / "timing.csv", "step,t,wall_seconds,step_seconds,solver_seconds,list_seconds\n");
         write_file_atomic(out / "config.toml", to_toml(c));
+        arm_kill_summary(StepRecord{}, false);
         write_domain_surface(out);
         write_file_atomic(out / "summary.json", summary("running", "", StepRecord{}).dump(2) + "\n");
       }
@@ -1199,6 +1231,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       // The rows after the checkpoint (a run killed between checkpoints) are taken again.
       series_file = AppendFile(out / "series.csv", csv_up_to_step(out / "series.csv", k_done));
       timing_file = AppendFile(out / "timing.csv", csv_up_to_step(out / "timing.csv", k_done));
+      arm_kill_summary(last, true);
       write_file_atomic(out / "summary.json", summary("running", "", last).dump(2) + "\n");
     }
     const std::int64_t steps_to_run = c.run.max_steps > 0 ? std::min(n_total, c.run.max_steps) : n_total;

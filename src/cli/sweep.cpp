@@ -20,6 +20,7 @@
 #include <thread>
 
 #include "otfp_app/config.hpp"
+#include "otfp_app/simulation.hpp"
 #include "otfp_app/writers.hpp"
 
 extern char** environ;
@@ -292,7 +293,9 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
     const std::filesystem::path dir = o.out_dir / row.dir;
     std::filesystem::create_directories(dir);
     std::filesystem::remove(dir / "summary.json", ec);
-    std::vector<std::string> args = {o.executable.string(), "run", o.config.string(), "--out", dir.string(), "--quiet"};
+    // The run directories are the sweep's own: a sweep run again replaces their runs.
+    std::vector<std::string> args = {o.executable.string(), "run",       o.config.string(), "--out",
+                                     dir.string(),          "--overwrite", "--quiet"};
     for (const std::string& s : o.sets) args.insert(args.end(), {"--set", s});
     for (std::size_t k = 0; k < keys.size(); ++k) args.insert(args.end(), {"--set", keys[k] + "=" + grid[i][k]});
     std::vector<char*> argv;
@@ -303,13 +306,30 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
     const std::string log = (dir / "otfp.log").string();
     posix_spawn_file_actions_addopen(&fa, STDOUT_FILENO, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     posix_spawn_file_actions_adddup2(&fa, STDOUT_FILENO, STDERR_FILENO);
+    // Each run in its own process group: a Ctrl-C at the terminal reaches the
+    // sweep only, which forwards it once (a run stops at the second signal).
+    // The runs start with the default SIGINT/SIGTERM actions and none blocked.
+    posix_spawnattr_t attr;
+    posix_spawnattr_init(&attr);
+    sigset_t none, defaults;
+    sigemptyset(&none);
+    sigemptyset(&defaults);
+    sigaddset(&defaults, SIGINT);
+    sigaddset(&defaults, SIGTERM);
+    posix_spawnattr_setsigmask(&attr, &none);
+    posix_spawnattr_setsigdefault(&attr, &defaults);
+    posix_spawnattr_setpgroup(&attr, 0);
+    posix_spawnattr_setflags(&attr, POSIX_SPAWN_SETPGROUP | POSIX_SPAWN_SETSIGMASK | POSIX_SPAWN_SETSIGDEF);
     pid_t pid = -1;
-    const int rc = posix_spawn(&pid, argv[0], &fa, nullptr, argv.data(), environ);
+    const int rc = posix_spawn(&pid, argv[0], &fa, &attr, argv.data(), environ);
+    posix_spawnattr_destroy(&attr);
     posix_spawn_file_actions_destroy(&fa);
     if (rc != 0) throw std::runtime_error(fmt::format("cannot start {}: {}", argv[0], std::strerror(rc)));
     return Running{pid, Clock::now()};
   };
 
+  bool stopping = false;  // a signal came: start nothing more
+  int forwarded = 0;      // signals passed on to the running runs
   auto finish = [&](std::size_t i, const Running& r, pid_t waited, int wstatus, bool timed_out) {
     const int saved_errno = errno;
     SweepRow& row = result.rows[i];
@@ -333,8 +353,17 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
       row.error = fmt::format("waitpid failed: {}", std::strerror(saved_errno));
     } else if (WIFEXITED(wstatus)) {
       row.exit_code = WEXITSTATUS(wstatus);
-      row.status = row.exit_code == 0 ? "completed" : row.exit_code == 2 ? "invalid" : "failed";
+      row.status = row.exit_code == 0   ? "completed"
+                   : row.exit_code == 2 ? "invalid"
+                   : row.exit_code == kExitInterrupted ? "interrupted"
+                                                       : "failed";
       if (row.exit_code != 0) row.error = error_from_log(dir / "otfp.log");
+    } else if (stopping && WIFSIGNALED(wstatus) &&
+               (WTERMSIG(wstatus) == SIGINT || WTERMSIG(wstatus) == SIGTERM)) {
+      // Killed by a signal the sweep forwarded (the second one).
+      row.status = "interrupted";
+      row.exit_code = -1;
+      row.error = fmt::format("stopped by signal {} (forwarded by the sweep)", WTERMSIG(wstatus));
     } else {
       row.status = "crashed";
       row.exit_code = -1;
@@ -369,8 +398,17 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
   // Children must stay waitable even if SIGCHLD was inherited as ignored.
   ::signal(SIGCHLD, SIG_DFL);
   std::size_t next = 0;
-  while (next < grid.size() || !running.empty()) {
-    while (next < grid.size() && running.size() < static_cast<std::size_t>(o.jobs)) {
+  while ((next < grid.size() && !stopping) || !running.empty()) {
+    // A signal: no more runs; the running ones get each signal the sweep gets.
+    const int signals = o.stop_count ? static_cast<int>(*o.stop_count) : 0;
+    if (signals > forwarded) {
+      stopping = true;
+      result.interrupted = true;
+      const int sig = o.stop_signal && *o.stop_signal ? static_cast<int>(*o.stop_signal) : SIGTERM;
+      for (auto& [i, run] : running) ::kill(run.pid, sig);
+      forwarded = signals;
+    }
+    while (!stopping && next < grid.size() && running.size() < static_cast<std::size_t>(o.jobs)) {
       running[next] = launch(next);
       ++next;
     }

@@ -2,6 +2,7 @@
 // `otfp sweep`: runs the grid of --vary values of one configuration, each as
 // a separate `otfp run` process (a crash or a failed step stays one row), and
 // aggregates the runs' summary.json files into runs.csv (docs/outputs.md).
+#include <csignal>
 #include <filesystem>
 #include <iosfwd>
 #include <string>
@@ -36,13 +37,18 @@ struct SweepOptions {
   double timeout_seconds = 0.0;       // per run; 0: none
   std::filesystem::path executable;   // the otfp binary that runs each point
   bool progress = true;               // one line per finished run on the error stream
+  // Set by a SIGINT/SIGTERM handler (the signal number): the sweep starts no
+  // more runs, forwards the signal to the running ones (each of them, again,
+  // on every further signal), reaps them and writes runs.csv with the rows it has.
+  const volatile std::sig_atomic_t* stop_signal = nullptr;
+  const volatile std::sig_atomic_t* stop_count = nullptr;  // signals received so far
 };
 
 struct SweepRow {
   int index = 0;
   std::string dir;                   // run directory name under out_dir
   std::vector<std::string> values;   // one per key
-  std::string status;                // completed | failed | invalid | timeout | crashed
+  std::string status;                // completed | failed | invalid | timeout | crashed | interrupted
   int exit_code = 0;
   std::string error;
   double wall_seconds = 0.0;
@@ -52,6 +58,7 @@ struct SweepRow {
 struct SweepResult {
   std::vector<SweepRow> rows;
   int failed = 0;                    // rows whose status is not "completed"
+  bool interrupted = false;          // stopped by a signal (stop_signal): runs.csv holds the runs started
 };
 
 // Checks the options (throws ConfigError naming the offending option or key),

@@ -38,6 +38,18 @@ class AppendFile {
   std::filesystem::path path_;
 };
 
+// A run stopped outright by a signal (a second SIGINT/SIGTERM while a step is
+// still running) cannot unwind; a handler calls kill_time_cleanup(), which is
+// async-signal-safe (open, write, rename, unlink on prepared buffers): it
+// removes the temporary file write_file_atomic is writing, if any, and the
+// paths given to set_kill_time_paths (e.g. the checkpoint's temporary file,
+// the lock file), and puts the last summary given to set_kill_time_summary
+// in place of the summary file.
+void set_kill_time_paths(std::vector<std::filesystem::path> paths);
+void set_kill_time_summary(const std::filesystem::path& path, std::string content);
+void clear_kill_time_state();
+void kill_time_cleanup() noexcept;
+
 // Region flag of a particle in the VTK output and the counts.
 enum Region : std::int32_t { kInside = 0, kBuffer = 1, kElsewhere = 2 };
 
