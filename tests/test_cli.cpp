@@ -706,3 +706,18 @@ TEST(Cli, ResourceLimitsStopRunawayParticleCreation) {
   }
   fs::remove_all(dir);
 }
+
+// A cosine mode finer than two particle spacings cannot be sampled: its
+// amplitude a(0) is noise about 0 and the error column (scaled by a(0)) was
+// NaN, failing the run at step 0 after the directory existed. Refused before
+// any work now, naming the largest mode the spacing allows.
+TEST(Cli, CosineModeFinerThanTheSpacingIsRefused) {
+  const fs::path file = kExamples / "periodic_cosine.toml";
+  try {
+    ConfiguredRun run(parse_config_file(file, {"particles.fill_mode=400"}));
+    ADD_FAILURE() << "fill_mode = 400 was accepted";
+  } catch (const ConfigError& e) {
+    EXPECT_EQ(std::string(e.what()).rfind("particles.fill_mode = 400: must be at most ", 0), 0u) << e.what();
+  }
+  EXPECT_NO_THROW(ConfiguredRun(parse_config_file(file, {"particles.fill_mode=2"})));
+}

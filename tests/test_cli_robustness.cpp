@@ -388,3 +388,43 @@ TEST(CliRobustness, SignalsEndTheRunInterruptedWithoutTemporaryFiles) {
     fs::remove(dir.string() + ".log");
   }
 }
+
+// A full disk, imitated by a file-size limit (ulimit -f: writes past it fail
+// with EFBIG, as with ENOSPC): the run fails with exit 1 and one line naming
+// the file, series.csv and timing.csv are cut back to whole, matching rows,
+// summary.json says "failed", and no temporary file is left. It used to leave
+// a partial last row and a summary saying "running".
+TEST(CliRobustness, ShortWriteRollsBackToTheLastCompleteRow) {
+  const fs::path dir = fresh_dir("disk_full");
+  const fs::path out_file = fresh_dir("disk_full_out");
+  const std::string cmd = "bash -c 'ulimit -f 12; exec " + std::string(OTFP_CLI_PATH) + " run " + kFast + " --out " +
+                          dir.string() +
+                          " --quiet --set particles.n_inf=30 --set run.t_end=4 --set run.vtk_interval=0'"
+                          " >" + out_file.string() + " 2>&1";
+  const int status = std::system(cmd.c_str());
+  const std::string output = read_text(out_file);
+  fs::remove(out_file);
+  ASSERT_TRUE(WIFEXITED(status)) << output;
+  EXPECT_EQ(WEXITSTATUS(status), 1) << output;
+  EXPECT_EQ(lines(output), 1) << output;
+  EXPECT_TRUE(contains(output, "series.csv") || contains(output, "timing.csv")) << output;
+  EXPECT_TRUE(contains(output, "cut back to its last complete row")) << output;
+
+  const std::string series = read_text(dir / "series.csv");
+  const std::string timing = read_text(dir / "timing.csv");
+  ASSERT_FALSE(series.empty());
+  EXPECT_EQ(series.back(), '\n');
+  EXPECT_EQ(timing.back(), '\n');
+  EXPECT_GT(lines(series), 5);   // some rows were written ...
+  EXPECT_LT(lines(series), 100);  // ... but not the whole run
+  EXPECT_EQ(lines(series), lines(timing));
+  std::istringstream in(series);
+  std::string header, row;
+  std::getline(in, header);
+  const auto fields = std::count(header.begin(), header.end(), ',');
+  while (std::getline(in, row)) EXPECT_EQ(std::count(row.begin(), row.end(), ','), fields) << row;
+  EXPECT_TRUE(contains(read_text(dir / "summary.json"), "\"status\": \"failed\""));
+  for (const auto& e : fs::directory_iterator(dir))
+    EXPECT_FALSE(contains(e.path().filename().string(), ".tmp")) << e.path();
+  fs::remove_all(dir);
+}

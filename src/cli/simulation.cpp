@@ -407,7 +407,19 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
                                               : "particles.n_inf",
                       fmt::format("{} initial particles", d.fill_count), limit_rule);
   if (pa.n_inf > d.max_particles) throw ConfigError("particles.n_inf", fmt::format("{}", pa.n_inf), limit_rule);
-  if (pa.fill == "cosine") d.mode_wavenumber = 2.0 * kPi * static_cast<double>(pa.fill_mode) / (c.domain.hi[0] - c.domain.lo[0]);
+  if (pa.fill == "cosine") {
+    // At least two particle spacings per wavelength: a finer mode cannot be
+    // sampled (its measured amplitude is noise about 0, and the error column,
+    // scaled by a(0), would not be finite).
+    const double length = c.domain.hi[0] - c.domain.lo[0];
+    const double most = std::floor(length / (2.0 * d.dr));
+    if (static_cast<double>(pa.fill_mode) > most)
+      throw ConfigError("particles.fill_mode", fmt::format("{}", pa.fill_mode),
+                        fmt::format("must be at most {} (two particle spacings dr = {:.4g} per wavelength along x; "
+                                    "raise particles.n_inf for a finer mode)",
+                                    most, d.dr));
+    d.mode_wavenumber = 2.0 * kPi * static_cast<double>(pa.fill_mode) / length;
+  }
 
   // Diagnostics centre, J_inf, reference curves.
   d.center = c.diagnostics.center ? *c.diagnostics.center : st.built.centroid;
@@ -1113,9 +1125,16 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
     auto emit = [&](const StepRecord& r, bool final_row) {
       const std::string line = csv_row(r);
       if (write) {
+        // A row is in both files or in neither (a full disk fails either write).
+        const std::uint64_t series_size = series_file.size();
         series_file.append(line);
-        timing_file.append(fmt::format("{},{},{},{},{},{}\n", r.step, r.t, r.wall_seconds, r.step_seconds,
-                                       r.solver_seconds, r.list_seconds));
+        try {
+          timing_file.append(fmt::format("{},{},{},{},{},{}\n", r.step, r.t, r.wall_seconds, r.step_seconds,
+                                         r.solver_seconds, r.list_seconds));
+        } catch (...) {
+          series_file.truncate(series_size);
+          throw;
+        }
         if (r.step == 0 || final_row || (c.run.vtk_interval > 0 && r.step % c.run.vtk_interval == 0)) snapshot(r);
       }
       if (options.keep_series) result.series.push_back(r);
@@ -1310,6 +1329,9 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
         result.status = "failed";
         result.error = e.what();
         result.exit_code = 1;
+      } else {
+        result.error += fmt::format("; summary.json could not be updated either ({}): it may still say \"running\"",
+                                    e.what());
       }
     }
   }

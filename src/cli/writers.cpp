@@ -143,13 +143,17 @@ AppendFile::AppendFile(const std::filesystem::path& path, std::string_view heade
   write_file_atomic(path, header);
   fd_ = ::open(path.c_str(), O_WRONLY | O_APPEND | O_CLOEXEC);
   if (fd_ < 0) io_error("cannot open", path);
+  const off_t end = ::lseek(fd_, 0, SEEK_END);
+  if (end < 0) io_error("cannot seek in", path);
+  size_ = static_cast<std::uint64_t>(end);
 }
 
 AppendFile::~AppendFile() {
   if (fd_ >= 0) ::close(fd_);
 }
 
-AppendFile::AppendFile(AppendFile&& other) noexcept : fd_(other.fd_), path_(std::move(other.path_)) {
+AppendFile::AppendFile(AppendFile&& other) noexcept
+    : fd_(other.fd_), path_(std::move(other.path_)), size_(other.size_) {
   other.fd_ = -1;
 }
 
@@ -158,6 +162,7 @@ AppendFile& AppendFile::operator=(AppendFile&& other) noexcept {
     if (fd_ >= 0) ::close(fd_);
     fd_ = other.fd_;
     path_ = std::move(other.path_);
+    size_ = other.size_;
     other.fd_ = -1;
   }
   return *this;
@@ -165,7 +170,21 @@ AppendFile& AppendFile::operator=(AppendFile&& other) noexcept {
 
 void AppendFile::append(std::string_view lines) {
   if (fd_ < 0) throw std::runtime_error("AppendFile: not open");
-  write_all(fd_, lines, path_);
+  try {
+    write_all(fd_, lines, path_);
+  } catch (const std::exception& e) {
+    // Whatever part of the lines reached the file goes again.
+    const bool cut = ::ftruncate(fd_, static_cast<off_t>(size_)) == 0;
+    throw std::runtime_error(std::string(e.what()) +
+                             (cut ? " (cut back to its last complete row)" : " (and it could not be cut back: the last row may be partial)"));
+  }
+  size_ += lines.size();
+}
+
+void AppendFile::truncate(std::uint64_t size) {
+  if (fd_ < 0 || size >= size_) return;
+  if (::ftruncate(fd_, static_cast<off_t>(size)) != 0) io_error("cannot cut back", path_);
+  size_ = size;
 }
 
 }  // namespace otfp::app

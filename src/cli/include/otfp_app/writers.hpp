@@ -20,7 +20,9 @@ void write_file_atomic(const std::filesystem::path& path, std::string_view conte
 
 // A text file that grows by whole lines: created atomically with its header,
 // then every append() is one write(2) on an O_APPEND descriptor, so a killed
-// run leaves only complete lines.
+// run leaves only complete lines. A short or failed write (a full disk, a
+// file-size limit) cuts the file back to its last complete append and throws
+// ("... cut back to its last complete row").
 class AppendFile {
  public:
   AppendFile() = default;
@@ -32,10 +34,15 @@ class AppendFile {
   AppendFile& operator=(const AppendFile&) = delete;
   void append(std::string_view lines);
   bool is_open() const { return fd_ >= 0; }
+  // Bytes in the file after the last complete append; truncate(size) cuts
+  // it back (e.g. a row whose partner row in another file failed).
+  std::uint64_t size() const { return size_; }
+  void truncate(std::uint64_t size);
 
  private:
   int fd_ = -1;
   std::filesystem::path path_;
+  std::uint64_t size_ = 0;
 };
 
 // A run stopped outright by a signal (a second SIGINT/SIGTERM while a step is
