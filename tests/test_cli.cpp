@@ -663,34 +663,48 @@ TEST(Cli, BinaryExitCodes) {
   fs::remove_all(dir);
 }
 
-// Boundary data that would create particles without end: refused before any
-// work when the papers' count n_inf is too large (exit 2), otherwise the
+// Data that would create particles without end (they used to exhaust the
+// memory, loop for ever, or cast 1e300 / m_p to an integer): refused before
+// any work when the numbers show it (exit 2, naming the key), otherwise the
 // step that would exceed run.max_particles fails the run (exit 1, status
-// "failed", one line naming the patch and the count) with complete files.
+// "failed", one line naming the patch or the source and the count) with
+// complete files.
 TEST(Cli, ResourceLimitsStopRunawayParticleCreation) {
   const fs::path dir = fresh_dir("limits");
   std::string err;
   auto ex = [](const char* name) { return (kExamples / name).string(); };
-  EXPECT_EQ(run_binary("run " + ex("sphere_dirichlet.toml") + " --quiet --out " + dir.string() +
-                           " --set particles.n_inf=1000000000",
-                       err),
-            2);
-  EXPECT_EQ(err.rfind("otfp: error: particles.n_inf = 1000000000: must be at most", 0), 0u) << err;
-  EXPECT_FALSE(fs::exists(dir / "series.csv"));
+  struct Refused {
+    const char* example;
+    std::string set, message;
+  };
+  const std::vector<Refused> refused = {
+      {"sphere_dirichlet.toml", "particles.n_inf=1000000000", "particles.n_inf = 1000000000: must be at most"},
+      {"sphere_injection.toml", "boundary.0.value=-1e12", "boundary[0].value = -1000000000000: asks for about"},
+      {"sphere_dirichlet.toml", "boundary.0.value=1e300", "boundary[0].value = 1e+300: asks for about"},
+      {"sphere_dirichlet.toml", "physics.source_rate=1e308", "physics.source_rate = 1e+308: |s| dt = "},
+      {"sphere_dirichlet.toml", "physics.velocity=[1e308,0,0]", "physics.velocity = [1e+308, 0, 0]: moves"},
+      {"sphere_dirichlet.toml", "diagnostics.center=[0,1e300,0]", "diagnostics.center = [0, 1e+300, 0]: must lie"},
+  };
+  for (const Refused& r : refused) {
+    EXPECT_EQ(run_binary("run " + ex(r.example) + " --quiet --out " + dir.string() + " --set " + r.set, err), 2)
+        << r.set;
+    EXPECT_EQ(err.rfind("otfp: error: " + r.message, 0), 0u) << err;
+    EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+    EXPECT_FALSE(fs::exists(dir / "series.csv"));
+  }
 
   struct Case {
     const char* example;
     std::string set, patch;
   };
   const std::vector<Case> cases = {
-      {"sphere_injection.toml", "boundary.0.value=-1e12", "neumann patch"},  // an inflow of 1e12 per unit area
-      {"sphere_dirichlet.toml", "boundary.0.value=1e300", "dirichlet patch 0 ('surface')"},  // 1e300 / m_p
-      {"sphere_dirichlet.toml", "run.max_particles=2000", "dirichlet patch 0 ('surface')"},   // the band needs more
+      {"sphere_dirichlet.toml", "run.max_particles=2000", "dirichlet patch 0 ('surface')"},  // the band needs more
+      {"free_space_heat.toml", "run.max_particles=2000 --set physics.source_rate=100", "the source"},
   };
   for (const Case& c : cases) {
     fs::remove_all(dir);
     EXPECT_EQ(run_binary("run " + ex(c.example) + " --quiet --out " + dir.string() + " --set " + c.set +
-                             " --set run.max_steps=3",
+                             " --set run.max_steps=20",
                          err),
               1)
         << c.set;

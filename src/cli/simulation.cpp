@@ -226,6 +226,66 @@ struct ConfiguredRun::State {
 
 ConfiguredRun::~ConfiguredRun() = default;
 
+// Values that are finite but would fail at step 0 (an infinite advected
+// position, a source that multiplies the particles past any limit, boundary
+// data asking for more particles than the run may hold, a centre so far away
+// that squared distances overflow) are refused before any work.
+void ConfiguredRun::check_magnitudes(const std::vector<ConstantBoundaryData>& data) const {
+  const Config& c = config_;
+  const Derived& d = derived_;
+  // Plain loops over the dim axes (GCC 12 warns about Eigen's head(dim) here).
+  const Aabb box = domain_->bounding_box();
+  auto length = [&](const Vec3& a, const Vec3& b) {
+    double s2 = 0.0;
+    for (int k = 0; k < c.run.dim; ++k) s2 += (a[k] - b[k]) * (a[k] - b[k]);
+    return std::sqrt(s2);
+  };
+  const double far = 1e6 * std::max(length(box.hi, box.lo), d.dr);  // how far from the domain a point may be
+  const Vec3 mid(0.5 * (box.lo[0] + box.hi[0]), 0.5 * (box.lo[1] + box.hi[1]), 0.5 * (box.lo[2] + box.hi[2]));
+  auto vec = [](const Vec3& v) { return fmt::format("[{}, {}, {}]", v[0], v[1], v[2]); };
+  auto point_near = [&](const char* key, const std::optional<Vec3>& p) {
+    if (p && !(length(*p, mid) <= far))
+      throw ConfigError(key, vec(*p),
+                        fmt::format("must lie within 1e6 domain sizes ({:.4g}) of the domain's centre", far));
+  };
+  point_near("diagnostics.center", c.diagnostics.center);
+  point_near("particles.fill_center", c.particles.fill_center);
+  const double speed = length(c.physics.velocity, Vec3::Zero());
+  if (!(speed * c.run.t_end <= far))
+    throw ConfigError("physics.velocity", vec(c.physics.velocity),
+                      fmt::format("moves the particles {:.4g} over run.t_end = {}: at most 1e6 domain sizes ({:.4g})",
+                                  speed * c.run.t_end, c.run.t_end, far));
+  const double s_dt = std::abs(c.physics.source_rate) * d.dt;
+  if (!(s_dt <= 36.0))
+    throw ConfigError("physics.source_rate", fmt::format("{}", c.physics.source_rate),
+                      fmt::format("|s| dt = {:.4g} (dt = {:.4g}): must be at most 36 (one step multiplies the mass by "
+                                  "exp(s dt))",
+                                  s_dt, d.dt));
+  // Particles the data ask for: g over the layer (|A| x max(b, w)), or the
+  // inflow -f |A| over the run, in particles of mass m_p.
+  const double depth = std::max(d.layer_b, d.reservoir_width);
+  for (const ConstantBoundaryData& b : data) {
+    const double area = domain_->patch_area(b.patch);
+    const double t_on = b.kind == PatchKind::Neumann
+                            ? std::max(0.0, std::min(b.t_end, c.run.t_end) - std::min(b.t_start, c.run.t_end))
+                            : 0.0;
+    const double wanted = b.kind == PatchKind::Dirichlet ? std::abs(b.value) * area * depth / d.particle_mass
+                                                         : std::max(0.0, -b.value) * area * t_on / d.particle_mass;
+    if (!(wanted <= static_cast<double>(d.max_particles))) {
+      std::size_t index = 0;
+      for (std::size_t i = 0; i < c.boundary.size(); ++i)
+        if (detail::resolve_patch(state_->built, c.boundary[i].patch) == b.patch) index = i;
+      throw ConfigError(
+          fmt::format("boundary[{}].value", index), fmt::format("{}", b.value),
+          fmt::format("asks for about {:.4g} particles of mass {:.4g} on patch '{}' ({}): more than {} (run.max_particles)",
+                      wanted,
+                      d.particle_mass, domain_->patch_name(b.patch),
+                      b.kind == PatchKind::Dirichlet ? "g x area x layer depth / m_p" : "-f x area x time on / m_p",
+                      d.max_particles));
+    }
+  }
+}
+
 ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_(std::make_unique<State>()) {
   const Config& c = config_;
   const int dim = c.run.dim;
@@ -545,6 +605,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   tco.tolerance = c.run.time_tolerance;
   tco.dt_min = c.run.dt_min ? *c.run.dt_min : 1e-3 * d.dt;
   tco.dt_max = std::max(c.run.dt_max ? *c.run.dt_max : c.run.t_end, tco.dt_min);
+  check_magnitudes(data);
   try {
     st.data = data;
     st.options = so;

@@ -152,6 +152,7 @@ class ConfiguredRun {
   nlohmann::json describe() const;
 
  private:
+  void check_magnitudes(const std::vector<ConstantBoundaryData>& data) const;
   struct State;
   Config config_;
   DomainPtr domain_;
