@@ -284,6 +284,25 @@ TEST(Config, BadConfigurationsNameTheirKey) {
   fs::remove(file);
 }
 
+// Found by test_config_fuzz.cpp: an integer beyond 2^53 given to a number key
+// ("length_L = 9223372036854775807", --set solver.skin_factor=9223372036854775807)
+// escaped as std::bad_optional_access (toml++'s value<double>() refuses an
+// integer that is not exactly a double). It is read as the nearest double, as
+// the float literal with the same digits would be.
+TEST(Config, IntegerBeyondTwoToThe53IntoANumberKey) {
+  const Config c = parse_config_string(
+      "[particles]\nn_inf = 100\nlength_L = 9223372036854775807\n[physics]\nvelocity = [9007199254740993, 0]\n",
+      {"solver.skin_factor=9223372036854775807", "diagnostics.center=[-9223372036854775808]"});
+  EXPECT_EQ(c.particles.length_L, 9223372036854775807.0);
+  EXPECT_EQ(c.physics.velocity.x(), 9007199254740992.0);
+  EXPECT_EQ(c.solver.skin_factor, 9223372036854775807.0);
+  EXPECT_EQ(c.diagnostics.center->x(), -9223372036854775808.0);
+  // The geometry checks take it from there (a ConfigError, not another exception).
+  EXPECT_NE(rejection("[particles]\nn_inf = 100\nlength_L = 9223372036854775807\n[[boundary]]\npatch = \"surface\"\n"
+                      "kind = \"neumann\"\nvalue = 1.0\n"),
+            "");
+}
+
 TEST(Config, SyntaxErrorsGiveFileLineAndColumn) {
   try {
     parse_config_string("[run\nt_end = 1\n", {}, "bad.toml");
