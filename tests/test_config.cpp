@@ -303,6 +303,18 @@ TEST(Config, IntegerBeyondTwoToThe53IntoANumberKey) {
             "");
 }
 
+// Found by test_config_fuzz.cpp: box_mixed.toml with "length_L = 9223372036854775807"
+// (b = sqrt(L dr) ~ 1e9): the Dirichlet face uses the reservoir, so b is not
+// bounded by the domain, but the projection still samples the face's layer cell
+// of half-thickness b and its rejection sampler gave up with a
+// std::runtime_error that escaped ConfiguredRun. It is a ConfigError now.
+TEST(Config, HugeLayerWithAReservoirFaceIsAConfigError) {
+  const std::string why =
+      rejection(read_text(kSource / "examples" / "box_mixed.toml"), {"particles.length_L=9223372036854775807"});
+  EXPECT_NE(why.find("boundary: "), std::string::npos) << why;
+  EXPECT_EQ(why.find('\n'), std::string::npos) << why;
+}
+
 TEST(Config, SyntaxErrorsGiveFileLineAndColumn) {
   try {
     parse_config_string("[run\nt_end = 1\n", {}, "bad.toml");
