@@ -315,6 +315,19 @@ TEST(Config, HugeLayerWithAReservoirFaceIsAConfigError) {
   EXPECT_EQ(why.find('\n'), std::string::npos) << why;
 }
 
+// A name with a newline given in the file (patch = "a\nb", a sub-patch named
+// so) was echoed raw: the ConfigError spanned two lines. Every message is one line.
+TEST(Config, NamesWithControlCharactersKeepTheMessageOnOneLine) {
+  const std::string why = rejection("[particles]\nn_inf = 100\n[[boundary]]\npatch = \"a\\nb\"\n"
+                                    "kind = \"dirichlet\"\nvalue = 1.0\n");
+  EXPECT_EQ(why, "boundary[0].patch = \"a\\x0ab\": unknown patch (patches: surface)");
+  const std::string sub = rejection(
+      "[particles]\nn_inf = 100\n[[domain.subpatch]]\nname = \"x\\ty\"\non = \"surface\"\n"
+      "center = [0.0, 0.0, 1.0]\nradius = 0.25\n[[boundary]]\npatch = \"nope\"\nkind = \"no_flux\"\n");
+  EXPECT_NE(sub.find("x\\x09y"), std::string::npos) << sub;
+  EXPECT_EQ(sub.find_first_of("\n\t"), std::string::npos) << sub;
+}
+
 TEST(Config, SyntaxErrorsGiveFileLineAndColumn) {
   try {
     parse_config_string("[run\nt_end = 1\n", {}, "bad.toml");

@@ -27,10 +27,27 @@
 
 namespace otfp::app {
 
+namespace {
+// A message is one line whatever it echoes (a patch name "a\nb" given in the
+// file, a sub-patch name inside a list of patches): control characters become
+// \xHH. Idempotent on text already escaped (it holds none).
+std::string one_line(std::string s) {
+  std::string out;
+  for (const char ch : s) {
+    const auto u = static_cast<unsigned char>(ch);
+    if (u < 0x20 || u == 0x7f)
+      out += fmt::format("\\x{:02x}", u);
+    else
+      out += ch;
+  }
+  return out;
+}
+}  // namespace
+
 ConfigError::ConfigError(const std::string& key, const std::string& value, const std::string& rule)
-    : std::runtime_error(key + " = " + value + ": " + rule), key_(key) {}
+    : std::runtime_error(one_line(key + " = " + value + ": " + rule)), key_(key) {}
 ConfigError::ConfigError(const std::string& key, const std::string& message)
-    : std::runtime_error(message), key_(key) {}
+    : std::runtime_error(one_line(message)), key_(key) {}
 
 namespace {
 
