@@ -175,6 +175,10 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
     if (reservoir_domain_ && std::string(e.what()).find("mirror image") != std::string::npos)
       throw SimulationSetupError(SimulationSetupError::Stage::ReservoirMirror, e.what());
     throw SimulationSetupError(SimulationSetupError::Stage::Projection, e.what());
+  } catch (const std::runtime_error& e) {
+    // The rejection sampler of a layer cell found no point (b far beyond the
+    // domain, say): the options cannot be used, as for InvalidArgument.
+    throw SimulationSetupError(SimulationSetupError::Stage::Projection, e.what());
   }
 
   const Periodicity periodicity = domain_->is_periodic() ? Periodicity::from_domain(*domain_) : Periodicity::none(dim);

@@ -284,6 +284,50 @@ TEST(Config, BadConfigurationsNameTheirKey) {
   fs::remove(file);
 }
 
+// Found by test_config_fuzz.cpp: an integer beyond 2^53 given to a number key
+// ("length_L = 9223372036854775807", --set solver.skin_factor=9223372036854775807)
+// escaped as std::bad_optional_access (toml++'s value<double>() refuses an
+// integer that is not exactly a double). It is read as the nearest double, as
+// the float literal with the same digits would be.
+TEST(Config, IntegerBeyondTwoToThe53IntoANumberKey) {
+  const Config c = parse_config_string(
+      "[particles]\nn_inf = 100\nlength_L = 9223372036854775807\n[physics]\nvelocity = [9007199254740993, 0]\n",
+      {"solver.skin_factor=9223372036854775807", "diagnostics.center=[-9223372036854775808]"});
+  EXPECT_EQ(c.particles.length_L, 9223372036854775807.0);
+  EXPECT_EQ(c.physics.velocity.x(), 9007199254740992.0);
+  EXPECT_EQ(c.solver.skin_factor, 9223372036854775807.0);
+  EXPECT_EQ(c.diagnostics.center->x(), -9223372036854775808.0);
+  // The geometry checks take it from there (a ConfigError, not another exception).
+  EXPECT_NE(rejection("[particles]\nn_inf = 100\nlength_L = 9223372036854775807\n[[boundary]]\npatch = \"surface\"\n"
+                      "kind = \"neumann\"\nvalue = 1.0\n"),
+            "");
+}
+
+// Found by test_config_fuzz.cpp: box_mixed.toml with "length_L = 9223372036854775807"
+// (b = sqrt(L dr) ~ 1e9): the Dirichlet face uses the reservoir, so b is not
+// bounded by the domain, but the projection still samples the face's layer cell
+// of half-thickness b and its rejection sampler gave up with a
+// std::runtime_error that escaped ConfiguredRun. It is a ConfigError now.
+TEST(Config, HugeLayerWithAReservoirFaceIsAConfigError) {
+  const std::string why =
+      rejection(read_text(kSource / "examples" / "box_mixed.toml"), {"particles.length_L=9223372036854775807"});
+  EXPECT_NE(why.find("boundary: "), std::string::npos) << why;
+  EXPECT_EQ(why.find('\n'), std::string::npos) << why;
+}
+
+// A name with a newline given in the file (patch = "a\nb", a sub-patch named
+// so) was echoed raw: the ConfigError spanned two lines. Every message is one line.
+TEST(Config, NamesWithControlCharactersKeepTheMessageOnOneLine) {
+  const std::string why = rejection("[particles]\nn_inf = 100\n[[boundary]]\npatch = \"a\\nb\"\n"
+                                    "kind = \"dirichlet\"\nvalue = 1.0\n");
+  EXPECT_EQ(why, "boundary[0].patch = \"a\\x0ab\": unknown patch (patches: surface)");
+  const std::string sub = rejection(
+      "[particles]\nn_inf = 100\n[[domain.subpatch]]\nname = \"x\\ty\"\non = \"surface\"\n"
+      "center = [0.0, 0.0, 1.0]\nradius = 0.25\n[[boundary]]\npatch = \"nope\"\nkind = \"no_flux\"\n");
+  EXPECT_NE(sub.find("x\\x09y"), std::string::npos) << sub;
+  EXPECT_EQ(sub.find_first_of("\n\t"), std::string::npos) << sub;
+}
+
 TEST(Config, SyntaxErrorsGiveFileLineAndColumn) {
   try {
     parse_config_string("[run\nt_end = 1\n", {}, "bad.toml");

@@ -27,10 +27,27 @@
 
 namespace otfp::app {
 
+namespace {
+// A message is one line whatever it echoes (a patch name "a\nb" given in the
+// file, a sub-patch name inside a list of patches): control characters become
+// \xHH. Idempotent on text already escaped (it holds none).
+std::string one_line(std::string s) {
+  std::string out;
+  for (const char ch : s) {
+    const auto u = static_cast<unsigned char>(ch);
+    if (u < 0x20 || u == 0x7f)
+      out += fmt::format("\\x{:02x}", u);
+    else
+      out += ch;
+  }
+  return out;
+}
+}  // namespace
+
 ConfigError::ConfigError(const std::string& key, const std::string& value, const std::string& rule)
-    : std::runtime_error(key + " = " + value + ": " + rule), key_(key) {}
+    : std::runtime_error(one_line(key + " = " + value + ": " + rule)), key_(key) {}
 ConfigError::ConfigError(const std::string& key, const std::string& message)
-    : std::runtime_error(message), key_(key) {}
+    : std::runtime_error(one_line(message)), key_(key) {}
 
 namespace {
 
@@ -512,6 +529,15 @@ std::string format_node(const toml::node& n) {
   return "(a date or time)";
 }
 
+// A kind-checked number (an integer or a float) as a double. toml++'s
+// value<double>() refuses an integer beyond 2^53 (not exactly a double): an
+// integer key value is rounded to the nearest double instead, as the float
+// literal with the same digits would be.
+double number_of(const toml::node& n) {
+  if (const auto* i = n.as_integer()) return static_cast<double>(i->get());
+  return n.as_floating_point()->get();
+}
+
 std::string kind_rule(const Field& spec) {
   switch (spec.kind) {
     case Kind::Int: return "must be an integer";
@@ -753,11 +779,11 @@ void apply_override(toml::table& root, const std::string& assignment) {
   check_kind(n, *spec, display, spec->kind == Kind::Int || spec->kind == Kind::Float ? text : "");
   switch (spec->kind) {
     case Kind::Int: target->insert_or_assign(key, n.as_integer()->get()); break;
-    case Kind::Float: target->insert_or_assign(key, n.value<double>().value()); break;
+    case Kind::Float: target->insert_or_assign(key, number_of(n)); break;
     case Kind::String: target->insert_or_assign(key, n.as_string()->get()); break;
     case Kind::Point: {
       toml::array a;
-      for (const toml::node& e : *n.as_array()) a.push_back(e.value<double>().value());
+      for (const toml::node& e : *n.as_array()) a.push_back(number_of(e));
       target->insert_or_assign(key, std::move(a));
       break;
     }
@@ -772,12 +798,12 @@ const toml::table* section(const toml::table& root, const std::string& name) { r
 Value node_value(const toml::node& n, Kind kind) {
   switch (kind) {
     case Kind::Int: return n.as_integer()->get();
-    case Kind::Float: return n.value<double>().value();
+    case Kind::Float: return number_of(n);
     case Kind::String: return n.as_string()->get();
     case Kind::Point: {
       Vec3 p = Vec3::Zero();  // missing components are 0
       const toml::array& a = *n.as_array();
-      for (std::size_t i = 0; i < a.size() && i < 3; ++i) p[static_cast<int>(i)] = a.get(i)->value<double>().value();
+      for (std::size_t i = 0; i < a.size() && i < 3; ++i) p[static_cast<int>(i)] = number_of(*a.get(i));
       return p;
     }
   }
