@@ -734,4 +734,11 @@ TEST(Cli, CosineModeFinerThanTheSpacingIsRefused) {
     EXPECT_EQ(std::string(e.what()).rfind("particles.fill_mode = 400: must be at most ", 0), 0u) << e.what();
   }
   EXPECT_NO_THROW(ConfiguredRun(parse_config_file(file, {"particles.fill_mode=2"})));
+  // The free-space reference without particles at t = 0 (its error scale 2 d kappa M t_end is 0).
+  try {
+    ConfiguredRun run(parse_config_file(kExamples / "free_space_heat.toml", {"particles.fill=empty"}));
+    ADD_FAILURE() << "an empty free-space run was accepted";
+  } catch (const ConfigError& e) {
+    EXPECT_EQ(std::string(e.what()).rfind("particles.fill = \"empty\": diagnostics.reference", 0), 0u) << e.what();
+  }
 }

@@ -467,6 +467,12 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
                                               : "particles.n_inf",
                       fmt::format("{} initial particles", d.fill_count), limit_rule);
   if (pa.n_inf > d.max_particles) throw ConfigError("particles.n_inf", fmt::format("{}", pa.n_inf), limit_rule);
+  // The free-space reference grows by 2 d kappa M t and its error is scaled
+  // by that growth over the run: with no particles at t = 0 both are 0.
+  if (c.diagnostics.reference == "free_space" && d.fill_count == 0)
+    throw ConfigError("particles.fill", quoted(pa.fill),
+                      "diagnostics.reference = \"free_space\" needs particles at t = 0 (its growth 2 d kappa M t "
+                      "scales with their mass M)");
   if (pa.fill == "cosine") {
     // At least two particle spacings per wavelength: a finer mode cannot be
     // sampled (its measured amplitude is noise about 0, and the error column,
