@@ -309,10 +309,16 @@ TEST(Config, IntegerBeyondTwoToThe53IntoANumberKey) {
 // of half-thickness b and its rejection sampler gave up with a
 // std::runtime_error that escaped ConfiguredRun. It is a ConfigError now.
 TEST(Config, HugeLayerWithAReservoirFaceIsAConfigError) {
-  const std::string why =
-      rejection(read_text(kSource / "examples" / "box_mixed.toml"), {"particles.length_L=9223372036854775807"});
+  // A tiny g, so that the data check (g |A| b / m_p particles) lets it through
+  // to the library's setup, whose sampler cannot hit the layer cell.
+  const std::string why = rejection(read_text(kSource / "examples" / "box_mixed.toml"),
+                                    {"particles.length_L=9223372036854775807", "boundary.0.value=1e-9"});
   EXPECT_NE(why.find("boundary: "), std::string::npos) << why;
   EXPECT_EQ(why.find('\n'), std::string::npos) << why;
+  // With the example's g the data check refuses it first, naming the value.
+  const std::string data = rejection(read_text(kSource / "examples" / "box_mixed.toml"),
+                                     {"particles.length_L=9223372036854775807"});
+  EXPECT_EQ(data.rfind("boundary[0].value = ", 0), 0u) << data;
 }
 
 // A name with a newline given in the file (patch = "a\nb", a sub-patch named
