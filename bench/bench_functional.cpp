@@ -10,14 +10,21 @@
 #include <benchmark/benchmark.h>
 #include <omp.h>
 
+#include <algorithm>
 #include <cmath>
 #include <map>
+#include <vector>
 #include <tuple>
 #include <memory>
 
 #include "otfp/functional.hpp"
 #include "otfp/geometry.hpp"
 #include "otfp/images.hpp"
+#include "pair_kernels.hpp"
+#ifdef OTFP_BENCH_HAVE_BASELINE
+#include "baseline_kernels.hpp"
+#endif
+
 
 using namespace otfp;
 
@@ -112,7 +119,96 @@ void BM_NeighborListBuildImages(benchmark::State& state) {
 }
 void BM_NeighborListBuildTailed(benchmark::State& state) { run_list_build(state, true); }
 
+// The two pair sweeps alone, one thread: variant 0 is the kernel before
+// issue 15 (bench/baseline_kernels.cpp: separate arrays, compiler-vectorised
+// gathers), 1 the library's kernel (packed records; AVX2 build when the CPU
+// has it), 2 the library's portable build. Same list, same particles, same
+// run, so that the ratio does not depend on the machine's load.
+// "max_rel_diff" compares rho and the gathered sums with the baseline's.
+void BM_PairSweeps(benchmark::State& state) {
+  const auto variant = state.range(0);
+  const auto n = static_cast<std::size_t>(state.range(1));
+  Setup& su = setup(n);
+  const auto& list = su.f->list();
+  const std::uint32_t* off = list.offsets().data();
+  const std::uint32_t* idx = list.indices().data();
+  const auto& m = su.ps.masses();
+  std::vector<double> px(n), py(n), pz(n), beta(n), mc(n), a(n), rec_b, rec_a;
+  double* xyzb = detail::packed_records(rec_b, n);
+  double* xyza = detail::packed_records(rec_a, n);
+  for (std::size_t p = 0; p < n; ++p) {
+    px[p] = su.x[p][0];
+    py[p] = su.x[p][1];
+    pz[p] = su.x[p][2];
+    beta[p] = 1.0 / (su.s[p] * su.s[p]);
+    mc[p] = m[p] * std::pow(beta[p] / M_PI, 1.5);
+    for (int k = 0; k < 3; ++k) xyzb[4 * p + k] = xyza[4 * p + k] = su.x[p][k];
+    xyzb[4 * p + 3] = mc[p];
+  }
+  std::vector<double> rho(n), gx(n), gy(n), gz(n), sx(n), sy(n), sz(n), ws(n), w2(n);
+  const detail::MinimumImage mi;
+  auto run = [&](long v) {
+#ifdef OTFP_BENCH_HAVE_BASELINE
+    if (v == 0) {
+      const bench_baseline::BaselineArrays b{px.data(), py.data(), pz.data(), beta.data(), mc.data()};
+      bench_baseline::density_rows(0, n, off, idx, b, mi, rho.data(), gx.data(), gy.data(), gz.data());
+      for (std::size_t p = 0; p < n; ++p) a[p] = m[p] / rho[p];
+      bench_baseline::gather_rows(0, n, off, idx, b, mi, a.data(), sx.data(), sy.data(), sz.data(), ws.data(),
+                                  w2.data());
+      return;
+    }
+#endif
+    detail::set_kernel_isa(v == 2 ? detail::KernelIsa::Generic : detail::KernelIsa::Auto);
+    const detail::BlobArrays b{xyzb, mc.data(), beta[0]};  // equal widths: records hold mc (as Functional does)
+    detail::density_rows(0, n, off, idx, b, mi, rho.data(), gx.data(), gy.data(), gz.data());
+    for (std::size_t p = 0; p < n; ++p) xyza[4 * p + 3] = m[p] / rho[p];
+    detail::gather_rows(0, n, off, idx, b, xyza, mi, sx.data(), sy.data(), sz.data(), ws.data(), w2.data());
+    detail::set_kernel_isa(detail::KernelIsa::Auto);
+  };
+#ifndef OTFP_BENCH_HAVE_BASELINE
+  if (variant == 0) {
+    state.SkipWithError("baseline kernel not built (needs x86-64 with AVX2)");
+    return;
+  }
+#else
+  if (!__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("fma")) {
+    if (variant != 2) {
+      state.SkipWithError("CPU without AVX2/FMA");
+      return;
+    }
+  }
+#endif
+  for (auto _ : state) {
+    run(variant);
+    benchmark::DoNotOptimize(ws.data());
+  }
+  // Compare with the baseline's results (or with the portable build without one).
+  const std::vector<double> rho1 = rho, ws1 = ws, sx1 = sx;
+#ifdef OTFP_BENCH_HAVE_BASELINE
+  run(0);
+#else
+  run(2);
+#endif
+  double diff = 0.0;
+  for (std::size_t p = 0; p < n; ++p) {
+    diff = std::max(diff, std::abs(rho1[p] - rho[p]) / rho[p]);
+    diff = std::max(diff, std::abs(ws1[p] - ws[p]) / ws[p]);
+    diff = std::max(diff, std::abs(sx1[p] - sx[p]) / (ws[p] * su.s[p]));
+  }
+  state.counters["max_rel_diff"] = diff;
+  state.counters["pair_evals_per_s"] = benchmark::Counter(
+      2.0 * static_cast<double>(list.num_entries()) * static_cast<double>(state.iterations()),
+      benchmark::Counter::kIsRate);
+  state.counters["neighbours"] = static_cast<double>(list.num_entries()) / static_cast<double>(n);
+  state.SetLabel(variant == 0 ? "baseline (pre-issue-15)" : variant == 1 ? detail::kernel_isa() : "generic");
+}
+
 }  // namespace
+
+BENCHMARK(BM_PairSweeps)
+    ->ArgsProduct({{0, 1, 2}, {100000}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 BENCHMARK(BM_FunctionalValueAndGradient)
     ->ArgsProduct({{10000, 100000, 1000000}, {1, 2}})

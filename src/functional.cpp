@@ -99,15 +99,17 @@ double EntropyTerm::evaluate(const std::vector<Vec3>& x, const std::vector<doubl
   const std::size_t n = x.size();
   const std::size_t nr = std::min(rows, n);  // blobs with an entropy term; the rest are images
   prepare(x, s, m);
-  px_.resize(n);
-  py_.resize(n);
-  pz_.resize(n);
+  // Equal widths (the common case) let a neighbour's record carry mc instead
+  // of beta: one load per neighbour in the density sweep.
+  const bool uniform = n > 0 && std::all_of(beta_.begin(), beta_.end(), [&](double v) { return v == beta_[0]; });
+  double* xyzb = detail::packed_records(xyzb_, n);
   for (std::size_t p = 0; p < n; ++p) {
-    px_[p] = x[p][0];
-    py_[p] = x[p][1];
-    pz_[p] = x[p][2];
+    xyzb[4 * p] = x[p][0];
+    xyzb[4 * p + 1] = x[p][1];
+    xyzb[4 * p + 2] = x[p][2];
+    xyzb[4 * p + 3] = uniform ? mc_[p] : beta_[p];
   }
-  const detail::BlobArrays b{px_.data(), py_.data(), pz_.data(), beta_.data(), mc_.data()};
+  const detail::BlobArrays b{xyzb, mc_.data(), uniform ? beta_[0] : 0.0};
   detail::MinimumImage mi;
   const Periodicity& per = list.periodicity();
   for (int k = 0; k < 3; ++k) {
@@ -141,13 +143,20 @@ double EntropyTerm::evaluate(const std::vector<Vec3>& x, const std::vector<doubl
   if (!grad) return value;
 
   a_.resize(n);
-  for (std::size_t p = 0; p < n; ++p) a_[p] = p < nr ? m[p] / rho_[p] : 0.0;
+  double* xyza = detail::packed_records(xyza_, n);
+  for (std::size_t p = 0; p < n; ++p) {
+    a_[p] = p < nr ? m[p] / rho_[p] : 0.0;
+    xyza[4 * p] = x[p][0];
+    xyza[4 * p + 1] = x[p][1];
+    xyza[4 * p + 2] = x[p][2];
+    xyza[4 * p + 3] = a_[p];
+  }
   std::vector<double>& wsum = t3_;
   std::vector<double>& wr2 = t4_;
   const std::size_t nchunks = (n + kChunk - 1) / kChunk;
 #pragma omp parallel for schedule(dynamic, 4)
   for (std::size_t c = 0; c < nchunks; ++c)
-    detail::gather_rows(c * kChunk, std::min(n, (c + 1) * kChunk), off, idx, b, mi, a_.data(), t0_.data(),
+    detail::gather_rows(c * kChunk, std::min(n, (c + 1) * kChunk), off, idx, b, xyza, mi, t0_.data(),
                         t1_.data(), t2_.data(), wsum.data(), wr2.data());
   pair_evals_ += list.num_entries();
   const bool widths = grad->s.size() == n;

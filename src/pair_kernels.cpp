@@ -7,19 +7,19 @@ namespace generic {
 void density_rows(std::size_t, std::size_t, const std::uint32_t*, const std::uint32_t*, const BlobArrays&,
                   const MinimumImage&, double*, double*, double*, double*);
 void gather_rows(std::size_t, std::size_t, const std::uint32_t*, const std::uint32_t*, const BlobArrays&,
-                 const MinimumImage&, const double*, double*, double*, double*, double*, double*);
+                 const double*, const MinimumImage&, double*, double*, double*, double*, double*);
 }  // namespace generic
 #ifdef OTFP_HAVE_AVX2_KERNELS
 namespace avx2 {
 void density_rows(std::size_t, std::size_t, const std::uint32_t*, const std::uint32_t*, const BlobArrays&,
                   const MinimumImage&, double*, double*, double*, double*);
 void gather_rows(std::size_t, std::size_t, const std::uint32_t*, const std::uint32_t*, const BlobArrays&,
-                 const MinimumImage&, const double*, double*, double*, double*, double*, double*);
+                 const double*, const MinimumImage&, double*, double*, double*, double*, double*);
 }  // namespace avx2
 #endif
 
 namespace {
-bool use_avx2() {
+bool cpu_has_avx2() {
 #ifdef OTFP_HAVE_AVX2_KERNELS
   static const bool yes = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
   return yes;
@@ -27,9 +27,12 @@ bool use_avx2() {
   return false;
 #endif
 }
+KernelIsa g_forced = KernelIsa::Auto;
+bool use_avx2() { return g_forced != KernelIsa::Generic && cpu_has_avx2(); }
 }  // namespace
 
 const char* kernel_isa() { return use_avx2() ? "avx2+fma" : "generic"; }
+void set_kernel_isa(KernelIsa isa) { g_forced = isa; }
 
 void density_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, const std::uint32_t* indices,
                   const BlobArrays& b, const MinimumImage& mi, double* rho, double* gx, double* gy, double* gz) {
@@ -40,12 +43,12 @@ void density_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, 
 }
 
 void gather_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, const std::uint32_t* indices,
-                 const BlobArrays& b, const MinimumImage& mi, const double* a, double* sx, double* sy, double* sz,
+                 const BlobArrays& b, const double* xyza, const MinimumImage& mi, double* sx, double* sy, double* sz,
                  double* wsum, double* wr2) {
 #ifdef OTFP_HAVE_AVX2_KERNELS
-  if (use_avx2()) return avx2::gather_rows(r0, r1, offsets, indices, b, mi, a, sx, sy, sz, wsum, wr2);
+  if (use_avx2()) return avx2::gather_rows(r0, r1, offsets, indices, b, xyza, mi, sx, sy, sz, wsum, wr2);
 #endif
-  generic::gather_rows(r0, r1, offsets, indices, b, mi, a, sx, sy, sz, wsum, wr2);
+  generic::gather_rows(r0, r1, offsets, indices, b, xyza, mi, sx, sy, sz, wsum, wr2);
 }
 
 }  // namespace otfp::detail

@@ -82,7 +82,8 @@ class EntropyTerm {
   double value_from_density(const std::vector<double>& m, std::size_t rows) const;
   int dim_;
   double kappa_, rho_ref_;
-  std::vector<double> rho_, beta_, mc_, a_, px_, py_, pz_, t0_, t1_, t2_, t3_, t4_;
+  std::vector<double> rho_, beta_, mc_, a_, t0_, t1_, t2_, t3_, t4_;
+  std::vector<double> xyzb_, xyza_;  // packed records of the pair sweeps (src/pair_kernels.hpp)
   std::vector<Vec3> grad_rho_;
   std::uint64_t pair_evals_ = 0;
 };
