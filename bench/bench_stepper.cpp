@@ -141,7 +141,7 @@ void BM_FirstStepAfterDtChange(benchmark::State& state) {
 
 // Issue 15: the cost of per-particle widths against fixed widths in the ball,
 // both in one benchmark run (the machine is shared; only ratios within one run
-// count). Args: n, width_skin in percent, max_width_factor x 10 (0: off).
+// count). Args: n, width_skin in percent, max_width_factor in percent (0: off).
 // Two steppers (Ceres, dt = dt_explicit, the measured tolerances) on copies
 // of the same cloud; 3 warm-up steps each (the widths spread), then the timed
 // steps alternate fixed / per-particle. Counters: medians per step, with
@@ -158,7 +158,7 @@ void BM_WidthCost(benchmark::State& state) {
   ImplicitOptions ow = o;
   ow.width_mode = WidthMode::PerParticle;
   ow.width_skin = static_cast<double>(state.range(1)) / 100.0;
-  ow.max_width_factor = static_cast<double>(state.range(2)) / 10.0;
+  ow.max_width_factor = static_cast<double>(state.range(2)) / 100.0;
   ow.nominal_width = width_cloud.pp.width_s;
   ImplicitStepper fixed(3, o, Barrier(fixed_cloud.ball, fixed_cloud.pp.barrier_C));
   ImplicitStepper width(3, ow, Barrier(width_cloud.ball, width_cloud.pp.barrier_C));
@@ -241,10 +241,10 @@ BENCHMARK(BM_FirstStepAfterDtChange)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK(BM_ExplicitStep)->DenseRange(0, 2)->Iterations(5)->Unit(benchmark::kMillisecond)->UseRealTime();
-// Skins 0 / 10 / 25 / 50 / 100 % without a bound, then bounds of 1.5, 2 and 3 s0.
+// Skins 0 / 10 / 25 / 50 / 100 % without a bound, then bounds of 1.25, 1.5, 2 and 3 s0 (x 100 here).
 BENCHMARK(BM_WidthCost)
     ->ArgsProduct({{3000}, {0, 10, 25, 50, 100}, {0}})
-    ->ArgsProduct({{3000}, {0, 10, 50}, {15, 20, 30}})
+    ->ArgsProduct({{3000}, {0, 10, 50}, {125, 150, 200, 300}})
     ->Iterations(5)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
