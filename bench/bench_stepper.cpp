@@ -1,7 +1,8 @@
 // One diffusive step in 3D: n = 1e4 particles uniform in the unit ball,
 // beta = 2/dr^2, barrier C = 1/dt_explicit. Implicit steps with both backends,
 // fixed and per-particle widths, at dt = 1x, 10x and 100x the explicit limit,
-// and one explicit step for comparison. Each benchmark iteration is one step
+// and one explicit step for comparison; BM_WidthCost (issue 15) puts fixed and
+// per-particle widths side by side at a smaller n. Each benchmark iteration is one step
 // (after two warm-up steps); counters give medians over the timed steps.
 //   ./otfp_bench_stepper --benchmark_counters_tabular=true
 #include <benchmark/benchmark.h>
@@ -9,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <ctime>
 
 #include "otfp/explicit_stepper.hpp"
 #include "otfp/geometry.hpp"
@@ -27,12 +29,12 @@ struct Cloud {
   DomainPtr ball;
 };
 
-Cloud make_cloud() {
+Cloud make_cloud(std::size_t n = kParticles) {
   Cloud c;
   c.ball = make_ball(3, Vec3::Zero(), 1.0);
-  c.pp = paper_parameters(c.ball->volume(), kParticles, 3, 1.0, 1.0, 2.0, SpacingRule::Cube);
+  c.pp = paper_parameters(c.ball->volume(), n, 3, 1.0, 1.0, 2.0, SpacingRule::Cube);
   Rng rng(11);
-  for (std::size_t i = 0; i < kParticles; ++i) c.ps.add(c.ball->sample_interior(rng), c.pp.width_s, 1.0 / kParticles);
+  for (std::size_t i = 0; i < n; ++i) c.ps.add(c.ball->sample_interior(rng), c.pp.width_s, 1.0 / n);
   return c;
 }
 
@@ -137,6 +139,76 @@ void BM_FirstStepAfterDtChange(benchmark::State& state) {
   state.counters["dt/dt_ex"] = dt / c.pp.dt_explicit;
 }
 
+// Issue 15: the cost of per-particle widths against fixed widths in the ball,
+// both in one benchmark run (the machine is shared; only ratios within one run
+// count). Args: n, width_skin in percent, max_width_factor in percent (0: off).
+// Two steppers (Ceres, dt = dt_explicit, the measured tolerances) on copies
+// of the same cloud; 3 warm-up steps each (the widths spread), then the timed
+// steps alternate fixed / per-particle. Counters: medians per step, with
+// "fx_" for fixed and "pp_" for per-particle widths; nbrs: list entries per
+// particle after the step; pp/fx: ratio of the medians of ms/step.
+void BM_WidthCost(benchmark::State& state) {
+  const auto n = static_cast<std::size_t>(state.range(0));
+  Cloud fixed_cloud = make_cloud(n);
+  Cloud width_cloud = make_cloud(n);
+  ImplicitOptions o;
+  set_measured_tolerances(o);
+  o.rho_ref = 1.0 / fixed_cloud.ball->volume();
+  if (const char* tol = std::getenv("OTFP_BENCH_TOLERANCE")) o.displacement_tolerance = std::atof(tol);
+  ImplicitOptions ow = o;
+  ow.width_mode = WidthMode::PerParticle;
+  ow.width_skin = static_cast<double>(state.range(1)) / 100.0;
+  ow.max_width_factor = static_cast<double>(state.range(2)) / 100.0;
+  ow.nominal_width = width_cloud.pp.width_s;
+  ImplicitStepper fixed(3, o, Barrier(fixed_cloud.ball, fixed_cloud.pp.barrier_C));
+  ImplicitStepper width(3, ow, Barrier(width_cloud.ball, width_cloud.pp.barrier_C));
+  const double dt = fixed_cloud.pp.dt_explicit;
+  for (int k = 0; k < 3; ++k) {
+    fixed.step(fixed_cloud.ps, dt);
+    width.step(width_cloud.ps, dt);
+  }
+  struct Series {
+    std::vector<double> ms, cpu, evals, builds, nbrs;
+  } fx, pp;
+  auto record = [](Series& sr, const StepSummary& s, ImplicitStepper& st, double cpu_seconds) {
+    const NeighborList& list = st.functional().list();
+    sr.ms.push_back(1e3 * s.wall_seconds);
+    sr.cpu.push_back(1e3 * cpu_seconds);
+    sr.evals.push_back(s.evaluations);
+    sr.builds.push_back(s.list_builds);
+    sr.nbrs.push_back(list.size() ? static_cast<double>(list.num_entries()) / list.size() : 0.0);
+  };
+  for (auto _ : state) {
+    // CPU time of the process too: on a loaded machine it is the steadier measure (run with OMP_NUM_THREADS=1).
+    const std::clock_t c0 = std::clock();
+    const StepSummary a = fixed.step(fixed_cloud.ps, dt);
+    const std::clock_t c1 = std::clock();
+    const StepSummary b = width.step(width_cloud.ps, dt);
+    const std::clock_t c2 = std::clock();
+    if (!a.accepted || !b.accepted) {
+      state.SkipWithError(("step rejected: " + (a.accepted ? b.message : a.message)).c_str());
+      break;
+    }
+    record(fx, a, fixed, static_cast<double>(c1 - c0) / CLOCKS_PER_SEC);
+    record(pp, b, width, static_cast<double>(c2 - c1) / CLOCKS_PER_SEC);
+  }
+  double s_max = 0.0;
+  for (double v : width_cloud.ps.widths()) s_max = std::max(s_max, v);
+  state.counters["fx_ms"] = median(fx.ms);
+  state.counters["pp_ms"] = median(pp.ms);
+  state.counters["pp/fx"] = median(fx.ms) > 0 ? median(pp.ms) / median(fx.ms) : 0.0;
+  state.counters["fx_cpu_ms"] = median(fx.cpu);
+  state.counters["pp_cpu_ms"] = median(pp.cpu);
+  state.counters["pp/fx_cpu"] = median(fx.cpu) > 0 ? median(pp.cpu) / median(fx.cpu) : 0.0;
+  state.counters["fx_evals"] = median(fx.evals);
+  state.counters["pp_evals"] = median(pp.evals);
+  state.counters["fx_builds"] = median(fx.builds);
+  state.counters["pp_builds"] = median(pp.builds);
+  state.counters["fx_nbrs"] = median(fx.nbrs);
+  state.counters["pp_nbrs"] = median(pp.nbrs);
+  state.counters["pp_smax/s0"] = s_max / width_cloud.pp.width_s;
+}
+
 void BM_ExplicitStep(benchmark::State& state) {
   Cloud c = make_cloud();
   ExplicitOptions o;
@@ -169,4 +241,11 @@ BENCHMARK(BM_FirstStepAfterDtChange)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK(BM_ExplicitStep)->DenseRange(0, 2)->Iterations(5)->Unit(benchmark::kMillisecond)->UseRealTime();
+// Skins 0 / 10 / 25 / 50 / 100 % without a bound, then bounds of 1.25, 1.5, 2 and 3 s0 (x 100 here).
+BENCHMARK(BM_WidthCost)
+    ->ArgsProduct({{3000}, {0, 10, 25, 50, 100}, {0}})
+    ->ArgsProduct({{3000}, {0, 10, 50}, {125, 150, 200, 300}})
+    ->Iterations(5)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 BENCHMARK_MAIN();

@@ -240,6 +240,7 @@ void FunctionalOptions::validate() const {
   require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
   require(std::isfinite(kappa) && kappa > 0.0, "kappa", kappa, "must be finite and > 0");
   require(std::isfinite(rho_ref) && rho_ref > 0.0, "rho_ref", rho_ref, "must be finite and > 0");
+  require(std::isfinite(width_skin) && width_skin >= 0.0, "width_skin", width_skin, "must be finite and >= 0");
   neighbor.validate();
 }
 
@@ -308,30 +309,42 @@ void Functional::extend(const std::vector<Vec3>& x, const std::vector<double>& s
 void Functional::select_images(const std::vector<Vec3>& x, const std::vector<double>& s) {
   // Each particle is mirrored across the walls within its list radius, with
   // the skin the list is about to use (NeighborList::build's rule).
+  // (With the width skin, the list's widths.)
   const NeighborOptions& no = options_.neighbor;
-  const double s_min = s.empty() ? 1.0 : *std::min_element(s.begin(), s.end());
+  const std::vector<double>& sl = list_widths(s);
+  const double s_min = sl.empty() ? 1.0 : *std::min_element(sl.begin(), sl.end());
   const double skin = no.skin >= 0.0 ? no.skin : no.skin_factor * s_min;
   std::vector<double> reach(x.size());
-  for (std::size_t p = 0; p < x.size(); ++p) reach[p] = cutoff_radius(s[p], no.kernel_tolerance) + skin;
+  for (std::size_t p = 0; p < x.size(); ++p) reach[p] = cutoff_radius(sl[p], no.kernel_tolerance) + skin;
   images_.select(x, reach);
   extend(x, s);
 }
 
+const std::vector<double>& Functional::list_widths(const std::vector<double>& s) {
+  if (!inflates_widths()) return s;
+  s_list_.resize(s.size());
+  const double f = 1.0 + options_.width_skin;
+  for (std::size_t p = 0; p < s.size(); ++p) s_list_[p] = f * s[p];
+  return s_list_;
+}
+
 void Functional::rebuild_list(const std::vector<Vec3>& x, const std::vector<double>& s) {
+  // The list is built for the (possibly inflated) widths; needs_rebuild()
+  // compares the actual widths with those, so growth within the margin is free.
   if (!images_.active()) {
-    list_.build(x, s, per_);
+    list_.build(x, list_widths(s), per_);
     return;
   }
   require(x.size() == m_.size() && s.size() == m_.size(), "configuration size", static_cast<double>(x.size()),
           "must match the reference set by set_reference()");
   select_images(x, s);
-  list_.build(x_ext_, s_ext_, per_);
+  list_.build(x_ext_, list_widths(s_ext_), per_);
   images_built_for_ = x.size();
 }
 
 void Functional::ensure_list(const std::vector<Vec3>& x, const std::vector<double>& s) {
   if (!images_.active()) {
-    if (list_.needs_rebuild(x, s)) list_.build(x, s, per_);
+    if (list_.needs_rebuild(x, s)) list_.build(x, list_widths(s), per_);
     return;
   }
   if (images_built_for_ == x.size() && list_.built()) {

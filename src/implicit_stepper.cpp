@@ -21,6 +21,13 @@ void ImplicitOptions::validate() const {
           "must be finite and >= 0");
   require(std::isfinite(error_smoothing) && error_smoothing >= 0.0 && error_smoothing <= 3.0, "error_smoothing",
           error_smoothing, "must be in [0, 3] widths (the neighbour list reaches about 4.3 widths)");
+  require(std::isfinite(width_skin) && width_skin >= 0.0, "width_skin", width_skin, "must be finite and >= 0");
+  require(max_width_factor == 0.0 || (std::isfinite(max_width_factor) && max_width_factor > 1.0), "max_width_factor",
+          max_width_factor, "must be 0 (off) or finite and > 1");
+  require(max_width_factor == 0.0 || (std::isfinite(nominal_width) && nominal_width > 0.0), "nominal_width",
+          nominal_width, "must be finite and > 0 when max_width_factor is set");
+  require(std::isfinite(max_width_factor * nominal_width), "max_width_factor", max_width_factor,
+          "x nominal_width must be finite");
   neighbor.validate();
 }
 
@@ -33,6 +40,7 @@ FunctionalOptions functional_options(const ImplicitOptions& o) {
   f.width_metric = o.width_metric;
   f.optimise_widths = o.width_mode == WidthMode::PerParticle;
   f.neighbor = o.neighbor;
+  f.width_skin = o.width_skin;
   return f;
 }
 
@@ -42,12 +50,31 @@ FunctionalOptions functional_options(const ImplicitOptions& o) {
 // which keeps s > 0 without bounds (NLopt's bounds slow L-BFGS down, Ceres has
 // none) and has unit curvature at s = s^k. s_anchor = s^k, the widths at the
 // start of the step (for BDF2 the functional's reference is s_hat instead).
+//
+// With an upper bound S on the widths (max_width_factor) the widths go
+// through a fold in log s: log(s/S) = phi(v), phi(v) = v for v <= -d and
+// -(v - d)^2/(4d) above (C1, d = kWidthFold), with z_s = b'_p (v - v^k). phi
+// is the log map below S e^-d, reaches its maximum 0 (s = S) at the finite
+// v = d and falls again beyond, so a width held by the bound is a stationary
+// point at finite z (a logistic map reaches S only as z -> infinity, and the
+// minimiser, chasing it, stalls: Ceres' relative step norm underflows).
+// b'_p = b_p phi'(v^k) (at least b_p/2) keeps unit curvature at s^k below the
+// fold. F itself is unchanged (a change of unknowns, not a penalty or a
+// clamp), so a step still only lowers F and the energy inequality holds.
+constexpr double kWidthFold = 0.25;
+double fold(double v) { return v <= -kWidthFold ? v : -(v - kWidthFold) * (v - kWidthFold) / (4.0 * kWidthFold); }
+double fold_slope(double v) { return v <= -kWidthFold ? 1.0 : -(v - kWidthFold) / (2.0 * kWidthFold); }
+double fold_inverse(double t) {  // the branch v <= d, for t <= 0
+  return t <= -kWidthFold ? t : kWidthFold - std::sqrt(-4.0 * kWidthFold * t);
+}
+
 class StepObjective final : public Objective {
  public:
   StepObjective(Functional& f, const ExternalPotential& ext, const std::vector<Vec3>& x_anchor,
                 const std::vector<double>& s_anchor, const std::vector<double>& m, double dt, bool widths,
-                const std::vector<double>& weights)
-      : f_(f), ext_(ext), s_ref_(s_anchor), m_(m), dim_(f.dim()), widths_(widths), n_(x_anchor.size()) {
+                const std::vector<double>& weights, double s_max)
+      : f_(f), ext_(ext), s_ref_(s_anchor), m_(m), dim_(f.dim()), widths_(widths), n_(x_anchor.size()),
+        s_max_(widths ? s_max : 0.0) {
     const double c_w = f.transport().c_w();
     scale_x_.resize(n_);
     scale_s_.resize(widths ? n_ : 0);
@@ -60,6 +87,17 @@ class StepObjective final : public Objective {
       disp_x_[p] = dt / am;
       if (widths) disp_s_[p] = dt / (c_w * am);
     }
+    if (s_max_ > 0.0) {
+      scale_b_.resize(n_);
+      u_ref_.resize(n_);
+      for (std::size_t p = 0; p < n_; ++p) {
+        require(s_anchor[p] <= s_max_, "max_width_factor", s_max_,
+                "x nominal_width (the bound, shown) must not be below a width at the start of a step (found " +
+                    std::to_string(s_anchor[p]) + ")");
+        u_ref_[p] = fold_inverse(std::log(s_anchor[p] / s_max_));
+        scale_b_[p] = scale_s_[p] * std::max(fold_slope(u_ref_[p]), 0.5);
+      }
+    }
     x_ = x_anchor;
     s_ = s_anchor;
   }
@@ -69,13 +107,13 @@ class StepObjective final : public Objective {
   void pack(const std::vector<Vec3>& x, const std::vector<double>& s, double* z) const {
     for (std::size_t p = 0; p < n_; ++p) {
       for (int k = 0; k < dim_; ++k) z[p * dim_ + k] = scale_x_[p] * x[p][k];
-      if (widths_) z[n_ * dim_ + p] = scale_s_[p] * std::log(s[p] / s_ref_[p]);
+      if (widths_) z[n_ * dim_ + p] = width_unknown(p, s[p]);
     }
   }
   void unpack(const double* z, std::vector<Vec3>& x, std::vector<double>& s) const {
     for (std::size_t p = 0; p < n_; ++p) {
       for (int k = 0; k < dim_; ++k) x[p][k] = z[p * dim_ + k] / scale_x_[p];
-      if (widths_) s[p] = s_ref_[p] * std::exp(z[n_ * dim_ + p] / scale_s_[p]);
+      if (widths_) s[p] = width_of(p, z[n_ * dim_ + p]);
     }
   }
 
@@ -98,7 +136,10 @@ class StepObjective final : public Objective {
     if (gradient) {
       for (std::size_t p = 0; p < n_; ++p) {
         for (int k = 0; k < dim_; ++k) gradient[p * dim_ + k] = g_.x[p][k] / scale_x_[p];
-        if (widths_) gradient[n_ * dim_ + p] = g_.s[p] * s_[p] / scale_s_[p];
+        if (widths_)
+          gradient[n_ * dim_ + p] =
+              s_max_ > 0.0 ? g_.s[p] * s_[p] * fold_slope(u_ref_[p] + z[n_ * dim_ + p] / scale_b_[p]) / scale_b_[p]
+                           : g_.s[p] * s_[p] / scale_s_[p];
       }
       for (std::size_t i = 0; i < num_variables(); ++i)
         if (!std::isfinite(gradient[i])) return false;
@@ -107,20 +148,33 @@ class StepObjective final : public Objective {
   }
 
   // max |dt/m dF/dx| and max |dt/(c_w m) dF/ds|: how far one gradient step would move a particle.
+  // With the bound the width part is |dt/(c_w m) dF/ds| phi'(v) b'/b: the same
+  // below the fold, zero where the bound holds a width (dF/ds < 0 there).
   double stopping_measure(const double* z, const double* gradient) const override {
     double worst = 0.0;
     for (std::size_t p = 0; p < n_; ++p) {
       for (int k = 0; k < dim_; ++k)
         worst = std::max(worst, std::abs(gradient[p * dim_ + k] * scale_x_[p] * disp_x_[p]));
       if (widths_) {
-        const double s = s_ref_[p] * std::exp(z[n_ * dim_ + p] / scale_s_[p]);
-        worst = std::max(worst, std::abs(gradient[n_ * dim_ + p] * scale_s_[p] / s * disp_s_[p]));
+        const double s = width_of(p, z[n_ * dim_ + p]);
+        const double scale = s_max_ > 0.0 ? scale_b_[p] : scale_s_[p];
+        worst = std::max(worst, std::abs(gradient[n_ * dim_ + p] * scale / s * disp_s_[p]));
       }
     }
     return worst;
   }
 
   const FunctionalParts& parts() const { return parts_; }
+
+  // Width of particle p for the unknown zs, and the unknown for width s.
+  double width_of(std::size_t p, double zs) const {
+    if (!(s_max_ > 0.0)) return s_ref_[p] * std::exp(zs / scale_s_[p]);
+    return std::min(s_max_ * std::exp(fold(u_ref_[p] + zs / scale_b_[p])), s_max_);
+  }
+  double width_unknown(std::size_t p, double s) const {
+    if (!(s_max_ > 0.0)) return scale_s_[p] * std::log(s / s_ref_[p]);
+    return scale_b_[p] * (fold_inverse(std::min(std::log(s / s_max_), 0.0)) - u_ref_[p]);
+  }
 
  private:
   Functional& f_;
@@ -130,14 +184,55 @@ class StepObjective final : public Objective {
   int dim_;
   bool widths_;
   std::size_t n_;
-  std::vector<double> scale_x_, scale_s_, disp_x_, disp_s_;
+  double s_max_;  // upper bound on the widths (0: none)
+  std::vector<double> scale_x_, scale_s_, disp_x_, disp_s_, scale_b_, u_ref_;
   std::vector<Vec3> x_;
   std::vector<double> s_;
   Gradient g_;
   FunctionalParts parts_;
 };
 
+// StepObjective with its own copies of the state it refers to (step_problem()).
+class OwnedStepObjective final : public Objective {
+ public:
+  OwnedStepObjective(Functional& f, const ExternalPotential& ext, std::vector<Vec3> x, std::vector<double> s,
+                     std::vector<double> m, double dt, bool widths, double s_max)
+      : x_(std::move(x)), s_(std::move(s)), m_(std::move(m)), obj_(f, ext, x_, s_, m_, dt, widths, {}, s_max) {}
+  std::size_t num_variables() const override { return obj_.num_variables(); }
+  bool evaluate(const double* z, double* value, double* gradient) override { return obj_.evaluate(z, value, gradient); }
+  double stopping_measure(const double* z, const double* gradient) const override {
+    return obj_.stopping_measure(z, gradient);
+  }
+  std::vector<double> start() const {
+    std::vector<double> z(obj_.num_variables());
+    obj_.pack(x_, s_, z.data());
+    return z;
+  }
+
+ private:
+  std::vector<Vec3> x_;
+  std::vector<double> s_, m_;
+  StepObjective obj_;
+};
+
 }  // namespace
+
+ImplicitStepper::StepProblem ImplicitStepper::step_problem(const ParticleSet& particles, double dt) {
+  require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
+  require(particles.dim() == dim_, "particles dim", particles.dim(),
+          "must equal the stepper's dim " + std::to_string(dim_));
+  functional_.set_dt(dt);
+  functional_.set_reference(particles.positions(), particles.widths(), particles.masses());
+  functional_.rebuild_list(particles.positions(), particles.widths());
+  const double s_max = options_.max_width_factor > 0.0 ? options_.max_width_factor * options_.nominal_width : 0.0;
+  auto obj = std::make_unique<OwnedStepObjective>(functional_, external_, particles.positions(), particles.widths(),
+                                                  particles.masses(), dt,
+                                                  options_.width_mode == WidthMode::PerParticle, s_max);
+  StepProblem problem;
+  problem.start = obj->start();
+  problem.objective = std::move(obj);
+  return problem;
+}
 
 ImplicitStepper::ImplicitStepper(int dim, ImplicitOptions options, Barrier barrier, Periodicity periodicity)
     : dim_(dim),
@@ -265,7 +360,8 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   const std::uint64_t pairs_before = functional_.entropy().pair_evaluations();
   functional_.rebuild_list(x, s);  // particles may have been added or removed
 
-  StepObjective objective(functional_, external_, x, s, m, dt, widths, weights);
+  const double s_max = options_.max_width_factor > 0.0 ? options_.max_width_factor * options_.nominal_width : 0.0;
+  StepObjective objective(functional_, external_, x, s, m, dt, widths, weights, s_max);
   std::vector<double> z(objective.num_variables());
   objective.pack(x, s, z.data());
 
@@ -326,6 +422,7 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
       if (!(g > 0.0)) continue;
       xp[p] = admissible_start(x[p], x[p] + g * hist[p].d1);
       if (widths) sp[p] = std::max(s[p] + g * hist[p].ds1, 0.5 * s[p]);
+      if (widths && s_max > 0.0) sp[p] = std::min(sp[p], s_max);  // inside the bound
       ++predicted;
     }
     if (predicted > 0) {
@@ -439,6 +536,10 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   const bool list_ok = list.built() && list.size() >= n;
   const Periodicity& per = functional_.periodicity();
   const double smoothing = options_.error_smoothing, smoothing2 = smoothing * smoothing;
+  // With the width skin the list holds more pairs; the smoothing keeps to the
+  // pairs the list would hold without it (the wider blob's cut-off plus the skin).
+  const bool cut_pairs = widths && options_.width_skin > 0.0;
+  const double tol = options_.neighbor.kernel_tolerance, skin_plain = list.skin() / (1.0 + options_.width_skin);
   for (std::size_t p = 0; p < ex.size(); ++p) {
     if (!has[p]) continue;
     const double sp2 = s_new[p] * s_new[p];
@@ -451,7 +552,12 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
         const std::size_t q = list.indices()[k];
         if (q >= n || !has[q]) continue;  // image blobs and particles without an estimate
         const double sq2 = s_new[q] * s_new[q];
-        const double w = m[q] * std::exp(-0.5 * per.displacement(x_new[p], x_new[q]).squaredNorm() / (smoothing2 * sq2));
+        const double r2 = per.displacement(x_new[p], x_new[q]).squaredNorm();
+        if (cut_pairs) {
+          const double rad = cutoff_radius(std::max(s_new[p], s_new[q]), tol) + skin_plain;
+          if (r2 > rad * rad) continue;
+        }
+        const double w = m[q] * std::exp(-0.5 * r2 / (smoothing2 * sq2));
         wsum += w;
         ax += w * ex[q];
         as += w * es[q];

@@ -181,6 +181,25 @@ TEST(Cli, SphereDirichletFillsAlongCranksCurve) {
   EXPECT_DOUBLE_EQ(r.summary["final"]["mass_blob"].get<double>(), r.last.mass_blob);
 }
 
+// Issue 15: solver.max_width_factor reaches the library in units of the
+// run's s0 (derived.width_s): the optimised widths stay at or below it, and
+// the widest press against it (unbounded they reach 3-6 s0 here).
+TEST(Cli, MaxWidthFactorBoundsTheWidthsOfARun) {
+  const fs::path out = fresh_dir("max_width_factor");
+  const RunResult r = run_example("sphere_dirichlet.toml",
+                                  {"particles.n_inf=100", "run.t_end=0.1", "run.vtk_interval=0",
+                                   "solver.width_mode=per_particle", "solver.max_width_factor=1.5"},
+                                  out);
+  ASSERT_EQ(r.exit_code, 0) << r.error;
+  const double s0 = r.summary["derived"]["width_s"].get<double>();
+  double widest = 0.0;
+  for (const auto& row : otfp::test::read_csv(out / "particles_final.csv"))
+    widest = std::max(widest, std::stod(row.at("width_s")));
+  EXPECT_LE(widest, 1.5 * s0 * (1.0 + 1e-12));
+  EXPECT_GT(widest, 1.4 * s0);
+  fs::remove_all(out);
+}
+
 // The default treatment (the odd reservoir outside the surface, the true
 // spacing): the reservoir is filled at t = 0 and counted as step 0's
 // insertions, nothing of it is inside Omega then (M(0) = 0), the filling never

@@ -525,6 +525,28 @@ TEST(Config, TimeSchemeAndAdaptiveKeysAreChecked) {
   EXPECT_NE(rejection(kBase, {"solver.time_scheme=bdf3"}).find("solver.time_scheme"), std::string::npos);
 }
 
+// Issue 15: the bound on optimised widths, s_p < max_width_factor x s0.
+TEST(Config, MaxWidthFactorIsChecked) {
+  const std::string pp = "solver.width_mode=per_particle";
+  EXPECT_EQ(rejection(kBase, {pp, "solver.max_width_factor=2"}), "");
+  EXPECT_EQ(rejection(kBase, {pp, "solver.max_width_factor=0"}), "");
+  EXPECT_EQ(rejection(kBase, {"solver.max_width_factor=0"}), "");
+  for (const std::string v : {"0.5", "1", "-1", "2e6"})
+    EXPECT_EQ(rejection(kBase, {pp, "solver.max_width_factor=" + v}).rfind("solver.max_width_factor = ", 0), 0u) << v;
+  EXPECT_EQ(rejection(kBase, {pp, "solver.max_width_factor=1"}),
+            "solver.max_width_factor = 1: must be 0 (off) or in (1, 1e6]");
+  EXPECT_EQ(rejection(kBase, {pp, "solver.max_width_factor=-1"}),
+            "solver.max_width_factor = -1: must be 0 (off) or in (1, 1e6]");
+  EXPECT_EQ(rejection(kBase, {"solver.max_width_factor=2"}).rfind(
+                "solver.max_width_factor = 2: needs solver.width_mode = \"per_particle\"", 0),
+            0u);
+  EXPECT_NE(rejection(kBase, {pp, "solver.max_width_factor=\"big\""}).find("solver.max_width_factor"),
+            std::string::npos);
+  // The library receives the factor and the run's s0.
+  const Config c = parse_config_string(kBase, {pp, "solver.max_width_factor=3"});
+  EXPECT_EQ(c.solver.max_width_factor, 3.0);
+}
+
 // ------------------------------------------------------------------ issue 12: one table
 
 namespace {
@@ -712,6 +734,8 @@ TEST(Config, CliDefaultsAreTheLibraryDefaults) {
   EXPECT_EQ(s.energy_tolerance, io.energy_tolerance);
   EXPECT_EQ(s.kernel_tolerance, io.neighbor.kernel_tolerance);
   EXPECT_EQ(s.skin_factor, io.neighbor.skin_factor);
+  EXPECT_EQ(s.max_width_factor, io.max_width_factor);
+  EXPECT_EQ(s.max_width_factor, 0.0);
   EXPECT_EQ(s.kernel_tolerance, eo.neighbor.kernel_tolerance);
   EXPECT_EQ(s.skin_factor, eo.neighbor.skin_factor);
   EXPECT_EQ(s.explicit_scheme, to_string(eo.scheme));

@@ -564,3 +564,170 @@ TEST(Steppers, BadMassesWidthsOrNonFiniteFAreRejectedAndStateKept) {
     EXPECT_EQ(ps.ids(), before.ids());
   }
 }
+
+// ------------------------------------------------------------ issue 15: widths
+
+namespace {
+
+// A clustered 3-D cloud whose blobs want to widen (they start at s = 0.08 in a
+// ball of radius 0.4: free diffusion widens them by sqrt(2 kappa dt) per step).
+ParticleSet widening_cloud() { return ball_cloud(3, 60, 0.4, 0.08, 21); }
+
+ImplicitOptions width_options(double width_skin, double max_width_factor) {
+  ImplicitOptions o = tight_options(Backend::Ceres, WidthMode::PerParticle, 1e-8);
+  o.relative_tolerance = 0.0;
+  o.width_skin = width_skin;
+  o.max_width_factor = max_width_factor;
+  o.nominal_width = 0.08;
+  return o;
+}
+
+}  // namespace
+
+TEST(ImplicitStepper, WidthBoundGradientMatchesFiniteDifferences) {
+  // The fold log(s/S) = phi(v) of the bounded width unknowns (S = 1.3 s0):
+  // the gradient the minimiser sees matches central differences of F at the
+  // start and at points where the widths press against the bound S = 1.3 s0.
+  ParticleSet ps = widening_cloud();
+  ImplicitStepper stepper(3, width_options(0.0, 1.3));
+  ImplicitStepper::StepProblem pb = stepper.step_problem(ps, 2e-3);
+  const std::size_t nv = pb.objective->num_variables();
+  ASSERT_EQ(nv, 4 * ps.size());
+  Rng rng(5);
+  for (double push : {0.0, 0.05, 0.12}) {  // b_p ~ 0.23: up to v - v^k ~ 0.8, across the fold at -0.25 .. 0.25
+    SCOPED_TRACE("width unknowns pushed by " + std::to_string(push));
+    std::vector<double> z = pb.start;
+    for (std::size_t i = 0; i < nv; ++i)
+      z[i] += i >= 3 * ps.size() ? push * rng.uniform(0.5, 1.5) : 0.05 * rng.uniform(-1, 1);
+    std::vector<double> g(nv);
+    double f = 0.0;
+    ASSERT_TRUE(pb.objective->evaluate(z.data(), &f, g.data()));
+    double gmax = 0.0;
+    for (double v : g) gmax = std::max(gmax, std::abs(v));
+    for (std::size_t i = 0; i < nv; i += 7) {
+      const double h = 1e-4;
+      std::vector<double> zp = z, zm = z;
+      zp[i] += h;
+      zm[i] -= h;
+      double fp = 0.0, fm = 0.0;
+      ASSERT_TRUE(pb.objective->evaluate(zp.data(), &fp, nullptr));
+      ASSERT_TRUE(pb.objective->evaluate(zm.data(), &fm, nullptr));
+      EXPECT_NEAR(g[i], (fp - fm) / (2.0 * h), 1e-5 * gmax + 1e-6 * std::abs(g[i])) << "unknown " << i;
+    }
+  }
+}
+
+TEST(ImplicitStepper, WidthSkinOnlyAddsPairsAndSavesBuilds) {
+  // The skin for widths builds the list for s (1 + width_skin): the list holds
+  // more pairs, all beyond the kernel cut-off, so the steps agree with the
+  // steps without it to the solver's tolerance, with fewer rebuilds.
+  ParticleSet a = widening_cloud(), b = a;
+  ImplicitStepper plain(3, width_options(0.0, 0.0)), skinned(3, width_options(0.5, 0.0));
+  int builds_plain = 0, builds_skinned = 0;
+  for (int k = 0; k < 4; ++k) {
+    const StepSummary sa = plain.step(a, 2e-3), sb = skinned.step(b, 2e-3);
+    ASSERT_TRUE(sa.accepted && sb.accepted) << sa.message << " / " << sb.message;
+    builds_plain += sa.list_builds;
+    builds_skinned += sb.list_builds;
+    EXPECT_GE(skinned.functional().list().num_entries(), plain.functional().list().num_entries());
+  }
+  EXPECT_LT(builds_skinned, builds_plain);
+  EXPECT_LT(max_difference(by_id(a), by_id(b)), 1e-6 * 0.08);
+  const std::vector<double> sa = widths_by_id(a), sb = widths_by_id(b);
+  for (std::size_t i = 0; i < sa.size(); ++i) {
+    EXPECT_NEAR(sa[i], sb[i], 1e-6 * sa[i]) << "particle " << i;
+    EXPECT_GT(sa[i], 0.08 * 1.2) << "the widths must have grown past the margin for this test to mean anything";
+  }
+  // The functional itself: the same value and gradient with either list, at a state the list was not built for.
+  Functional& fa = plain.functional();
+  Functional& fb = skinned.functional();
+  const std::vector<Vec3>& x = a.positions();
+  std::vector<double> s = a.widths();
+  fa.set_reference(x, s, a.masses());
+  fb.set_reference(x, s, a.masses());
+  fa.rebuild_list(x, s);
+  fb.rebuild_list(x, s);
+  for (double& v : s) v *= 1.3;  // within the skin: no rebuild for fb
+  const int before = fb.list().build_count();
+  Gradient ga, gb;
+  const double va = fa.evaluate(x, s, &ga).total(), vb = fb.evaluate(x, s, &gb).total();
+  EXPECT_EQ(fb.list().build_count(), before);
+  EXPECT_NEAR(va, vb, 1e-9 * std::abs(va));
+  for (std::size_t p = 0; p < x.size(); ++p) {
+    EXPECT_LT((ga.x[p] - gb.x[p]).norm(), 1e-7 * (ga.x[p].norm() + 1.0));
+    EXPECT_NEAR(ga.s[p], gb.s[p], 1e-7 * (std::abs(ga.s[p]) + 1.0));
+  }
+}
+
+TEST(ImplicitStepper, MaxWidthFactorBoundsTheWidths) {
+  const double factor = 1.25, s0 = 0.08;
+  ParticleSet ps = widening_cloud(), free = ps;
+  ImplicitStepper bounded(3, width_options(0.5, factor)), unbounded(3, width_options(0.5, 0.0));
+  double widest_free = 0.0, widest = 0.0;
+  for (int k = 0; k < 5; ++k) {
+    const StepSummary s = bounded.step(ps, 4e-3);
+    ASSERT_TRUE(s.accepted) << s.message << " step " << k << " residual " << s.residual_displacement << " tol "
+                            << s.gradient_tolerance << " evals " << s.evaluations << " halvings " << s.halvings;
+    EXPECT_LE(s.f_after, s.f_before);  // the bound is a change of unknowns: F still decreases
+    ASSERT_TRUE(unbounded.step(free, 4e-3).accepted);
+  }
+  for (double v : ps.widths()) {
+    EXPECT_LE(v, factor * s0);
+    widest = std::max(widest, v);
+  }
+  for (double v : free.widths()) widest_free = std::max(widest_free, v);
+  EXPECT_GT(widest_free, 1.5 * s0);     // unbounded, they grow well past the bound ...
+  EXPECT_GT(widest, 0.95 * factor * s0);  // ... bounded, they press against it
+}
+
+TEST(ImplicitStepper, WidthOptionsValidateNamingTheField) {
+  auto message = [](ImplicitOptions o) -> std::string {
+    try {
+      o.validate();
+    } catch (const InvalidArgument& e) {
+      return e.what();
+    }
+    return "";
+  };
+  const double inf = std::numeric_limits<double>::infinity(), nan = std::nan("");
+  for (double v : {-0.1, inf, nan}) {
+    ImplicitOptions o;
+    o.width_skin = v;
+    EXPECT_NE(message(o).find("width_skin"), std::string::npos) << v;
+    FunctionalOptions fo;
+    fo.width_skin = v;
+    try {
+      fo.validate();
+      ADD_FAILURE() << "FunctionalOptions accepted width_skin = " << v;
+    } catch (const InvalidArgument& e) {
+      EXPECT_NE(std::string(e.what()).find("width_skin"), std::string::npos);
+    }
+  }
+  for (double v : {-1.0, 0.5, 1.0, inf, nan}) {
+    ImplicitOptions o;
+    o.max_width_factor = v;
+    o.nominal_width = 0.1;
+    EXPECT_NE(message(o).find("max_width_factor"), std::string::npos) << v;
+  }
+  for (double v : {0.0, -0.1, inf, nan}) {
+    ImplicitOptions o;
+    o.max_width_factor = 2.0;
+    o.nominal_width = v;
+    EXPECT_NE(message(o).find("nominal_width"), std::string::npos) << v;
+  }
+  ImplicitOptions ok;
+  ok.width_skin = 0.5;
+  ok.max_width_factor = 2.0;
+  ok.nominal_width = 0.1;
+  EXPECT_EQ(message(ok), "");
+  // A width at or above the bound at the start of a step is refused, naming the option.
+  ParticleSet ps = widening_cloud();
+  ps.widths()[3] = 0.3;
+  ImplicitStepper stepper(3, width_options(0.0, 2.0));
+  try {
+    stepper.step(ps, 1e-3);
+    ADD_FAILURE() << "a width above the bound was accepted";
+  } catch (const InvalidArgument& e) {
+    EXPECT_NE(std::string(e.what()).find("max_width_factor"), std::string::npos) << e.what();
+  }
+}

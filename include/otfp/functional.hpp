@@ -107,6 +107,7 @@ struct FunctionalOptions {
   WidthMetric width_metric = WidthMetric::AsPrinted;  // c_w = 1 (default) or d/2
   bool optimise_widths = false;                 // gradient with respect to s as well
   NeighborOptions neighbor;                     // cut-off tolerance and skin
+  double width_skin = 0.0;                      // optimise_widths: list built for widths s (1 + width_skin), >= 0
   void validate() const;                        // throws InvalidArgument naming the field
 };
 
@@ -167,6 +168,11 @@ class Functional {
   void extend(const std::vector<Vec3>& x, const std::vector<double>& s);
   void select_images(const std::vector<Vec3>& x, const std::vector<double>& s);  // chooses images, then extend()
   void ensure_list(const std::vector<Vec3>& x, const std::vector<double>& s);
+  // The widths the list is built for: s itself, or s (1 + width_skin) when
+  // widths are unknowns (width growth within that margin needs no rebuild).
+  const std::vector<double>& list_widths(const std::vector<double>& s);
+  bool inflates_widths() const { return options_.optimise_widths && options_.width_skin > 0.0; }
+  std::vector<double> s_list_;
   FunctionalParts evaluate_impl(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad,
                                 bool all_pairs);
 };

@@ -5,6 +5,7 @@
 // conversions) live here; the report is StepSummary (step_summary.hpp).
 #include <cstddef>
 #include <limits>
+#include <memory>
 #include <string>
 #include <unordered_map>
 #include <utility>
@@ -33,6 +34,9 @@ struct ImplicitOptions {
   TimeScheme time_scheme = TimeScheme::Euler;        // implicit Euler or variational BDF2
   Predictor predictor = Predictor::None;             // start of each solve
   double error_smoothing = 2.0;                      // error estimate: smoothing length in widths s (0: per particle)
+  double width_skin = 0.0;                           // PerParticle: list built for widths s (1 + width_skin) (>= 0)
+  double max_width_factor = 0.0;                     // PerParticle: s_p <= this x nominal_width (0: off; else > 1)
+  double nominal_width = 0.0;                        // the run's nominal width s0 the bound refers to (> 0 if bounded)
   void validate() const;
 };
 
@@ -74,6 +78,15 @@ class ImplicitStepper {
   // with no history.
   std::vector<Vec3> predict(const ParticleSet& particles, double dt) const;
   double previous_dt() const { return dt1_; }
+  // The objective an Euler step of length dt from `particles` minimises, in
+  // the minimiser's scaled unknowns (positions, then widths with
+  // PerParticle), and the start z^k: for gradient checks. Uses (and moves the
+  // reference of) this stepper's functional.
+  struct StepProblem {
+    std::unique_ptr<Objective> objective;
+    std::vector<double> start;
+  };
+  StepProblem step_problem(const ParticleSet& particles, double dt);
   void set_external_potential(ExternalPotential u) { external_ = std::move(u); }
   const ImplicitOptions& options() const { return options_; }
   Functional& functional() { return functional_; }

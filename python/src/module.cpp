@@ -530,6 +530,7 @@ PYBIND11_MODULE(_otfp, m) {
       .field("width_metric", &FunctionalOptions::width_metric, "as_printed (c_w = 1) | exact (d/2)")
       .field("optimise_widths", &FunctionalOptions::optimise_widths, "gradient in the widths as well")
       .field("neighbor", &FunctionalOptions::neighbor, "NeighborOptions")
+      .field("width_skin", &FunctionalOptions::width_skin, "optimise_widths: list built for widths s (1 + this)")
       .validated()
       .done();
   Options<ImplicitOptions>(m, "ImplicitOptions", "The implicit variational step (28).")
@@ -547,6 +548,9 @@ PYBIND11_MODULE(_otfp, m) {
       .field("time_scheme", &ImplicitOptions::time_scheme, "euler | bdf2")
       .field("predictor", &ImplicitOptions::predictor, "none | extrapolate | damped")
       .field("error_smoothing", &ImplicitOptions::error_smoothing, "error estimate smoothing (widths)")
+      .field("width_skin", &ImplicitOptions::width_skin, "per_particle: list built for widths s (1 + this)")
+      .field("max_width_factor", &ImplicitOptions::max_width_factor, "per_particle: s <= this x nominal_width (0: off)")
+      .field("nominal_width", &ImplicitOptions::nominal_width, "the width s0 the bound refers to")
       .validated()
       .done();
   Options<ExplicitOptions>(m, "ExplicitOptions", "The explicit baselines.")

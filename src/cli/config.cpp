@@ -440,6 +440,8 @@ const std::vector<Field>& fields() {
         key("solver.barrier_stiffness", &SolverSection::barrier_stiffness).with(greater(0)),
         key("solver.kernel_tolerance", &SolverSection::kernel_tolerance).with(interval('(', 0, 1, ')', "must be in (0, 1)")),
         key("solver.skin_factor", &SolverSection::skin_factor).with(greater(0)),
+        key("solver.max_width_factor", &SolverSection::max_width_factor)
+            .with(interval('[', 0, 1e6, ']', "must be 0 (off) or in (1, 1e6]")),
         key("treatment.preset", &TreatmentSection::preset).one_of({"converging", "papers"}),
         key("treatment.no_flux", &TreatmentSection::no_flux).one_of({"barrier", "images"}),
         key("treatment.dirichlet", &TreatmentSection::dirichlet)
@@ -1031,6 +1033,11 @@ void validate(const Config& c) {
                           (s.backend == "ceres" ? "lbfgs, bfgs, nonlinear_cg" : "lbfgs, tnewton, var2, mma") + ")");
   if (s.width_mode == "per_particle" && s.stepper != "implicit")
     throw ConfigError("solver.width_mode", quoted(s.width_mode), "needs solver.stepper = \"implicit\"");
+  if (s.max_width_factor != 0.0 && !(s.max_width_factor > 1.0))
+    throw ConfigError("solver.max_width_factor", shown(s.max_width_factor), "must be 0 (off) or in (1, 1e6]");
+  if (s.max_width_factor != 0.0 && s.width_mode != "per_particle")
+    throw ConfigError("solver.max_width_factor", shown(s.max_width_factor),
+                      "needs solver.width_mode = \"per_particle\" (fixed widths have no bound to keep)");
   if (s.time_scheme != "euler" && s.stepper != "implicit")
     throw ConfigError("solver.time_scheme", quoted(s.time_scheme),
                       "needs solver.stepper = \"implicit\" (explicit schemes: solver.explicit_scheme)");

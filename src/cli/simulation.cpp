@@ -592,6 +592,8 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     io.time_scheme = time_scheme_from_string(s.time_scheme);
     io.predictor = predictor_from_string(s.predictor);
     io.error_smoothing = s.error_smoothing;
+    io.max_width_factor = s.max_width_factor;
+    io.nominal_width = d.width_s;  // the bound is max_width_factor x the run's s0
     io.kappa = c.physics.kappa;
     io.rho_ref = c.physics.rho_ref;
     io.neighbor = nb;

@@ -134,6 +134,7 @@ struct SolverSection {
   std::optional<double> barrier_stiffness;
   double kernel_tolerance = ImplicitOptions{}.neighbor.kernel_tolerance;
   double skin_factor = ImplicitOptions{}.neighbor.skin_factor;
+  double max_width_factor = ImplicitOptions{}.max_width_factor;  // per_particle: s_p <= this x s0 (0: off)
 };
 
 // How the boundaries are treated (docs/boundaries.md): the papers' way or the
