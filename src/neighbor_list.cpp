@@ -2,16 +2,71 @@
 
 #include <omp.h>
 
+#include <sys/mman.h>
+
 #include <algorithm>
+#include <cstdlib>
+#include <cstring>
+#include <new>
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
 #include <string>
 
 #include "cell_grid.hpp"
+#include "neighbor_kernels.hpp"
 #include "otfp/geometry.hpp"
 
 namespace otfp {
+
+namespace neighbor_kernels {
+namespace generic {
+#include "neighbor_kernels_impl.inc"
+}  // namespace generic
+#ifdef OTFP_HAVE_AVX2_KERNELS
+namespace avx2 {
+std::size_t box_candidates(const double* x, const double* y, const double* z, std::uint32_t b, std::uint32_t e,
+                           const double shift[3], const double lo[3], const double hi[3], double r2max, double* g2,
+                           std::uint32_t* out);
+std::size_t row_hits(const double* cx, const double* cy, const double* cz, const std::uint32_t* ids, std::size_t len,
+                     double qx, double qy, double qz, double r2, std::uint32_t self, double* d2, std::uint32_t* out);
+}  // namespace avx2
+#endif
+// The AVX2 build when the CPU has it, unless OTFP_NEIGHBOR_KERNELS=generic
+// (read at each build; the tests compare both builds' lists).
+bool use_avx2() {
+#ifdef OTFP_HAVE_AVX2_KERNELS
+  static const bool cpu = __builtin_cpu_supports("avx2");
+  const char* env = std::getenv("OTFP_NEIGHBOR_KERNELS");
+  return cpu && !(env && std::string(env) == "generic");
+#else
+  return false;
+#endif
+}
+
+std::size_t box_candidates(bool avx2, const double* x, const double* y, const double* z, std::uint32_t b,
+                           std::uint32_t e, const double shift[3], const double lo[3], const double hi[3],
+                           double r2max, double* g2, std::uint32_t* out) {
+#ifdef OTFP_HAVE_AVX2_KERNELS
+  if (avx2) return avx2::box_candidates(x, y, z, b, e, shift, lo, hi, r2max, g2, out);
+#else
+  (void)avx2;
+#endif
+  return generic::box_candidates(x, y, z, b, e, shift, lo, hi, r2max, g2, out);
+}
+
+std::size_t row_hits(bool avx2, const double* cx, const double* cy, const double* cz, const std::uint32_t* ids,
+                     std::size_t len, double qx, double qy, double qz, double r2, std::uint32_t self, double* d2,
+                     std::uint32_t* out) {
+#ifdef OTFP_HAVE_AVX2_KERNELS
+  if (avx2) return avx2::row_hits(cx, cy, cz, ids, len, qx, qy, qz, r2, self, d2, out);
+#else
+  (void)avx2;
+#endif
+  return generic::row_hits(cx, cy, cz, ids, len, qx, qy, qz, r2, self, d2, out);
+}
+
+}  // namespace neighbor_kernels
 
 Periodicity Periodicity::none(int dim) {
   Periodicity p;
@@ -44,7 +99,45 @@ void NeighborOptions::validate() const {
 
 struct NeighborList::Workspace {
   CellGrid grid;
+  double entries_per_particle = 0.0;  // of the last build: sizes the next build's buffers
 };
+
+namespace {
+// A growable array of row entries that is neither zeroed nor copied on
+// growth more than needed; large ones are asked to be backed by huge pages
+// (fewer page faults on memory that is written once per build).
+class EntryBuffer {
+ public:
+  EntryBuffer() = default;
+  EntryBuffer(const EntryBuffer&) = delete;
+  EntryBuffer& operator=(const EntryBuffer&) = delete;
+  ~EntryBuffer() { std::free(p_); }
+  std::uint32_t* data() { return p_; }
+  const std::uint32_t* data() const { return p_; }
+  std::size_t size() const { return size_; }
+  void set_size(std::size_t s) { size_ = s; }
+  // Room for `extra` more entries after size().
+  void ensure(std::size_t extra) {
+    if (size_ + extra <= cap_) return;
+    constexpr std::size_t kHuge = std::size_t{1} << 21;
+    std::size_t bytes = std::max(size_ + extra, 2 * cap_) * sizeof(std::uint32_t);
+    bytes = (bytes + kHuge - 1) / kHuge * kHuge;
+    auto* q = static_cast<std::uint32_t*>(std::aligned_alloc(kHuge, bytes));
+    if (!q) throw std::bad_alloc();
+#ifdef MADV_HUGEPAGE
+    madvise(q, bytes, MADV_HUGEPAGE);  // advice only: failure is harmless
+#endif
+    if (size_) std::memcpy(q, p_, size_ * sizeof(std::uint32_t));
+    std::free(p_);
+    p_ = q;
+    cap_ = bytes / sizeof(std::uint32_t);
+  }
+
+ private:
+  std::uint32_t* p_ = nullptr;
+  std::size_t size_ = 0, cap_ = 0;
+};
+}  // namespace
 
 NeighborList::WorkspaceHandle::WorkspaceHandle() = default;
 NeighborList::WorkspaceHandle::~WorkspaceHandle() = default;
@@ -106,84 +199,231 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
   const double* sz = grid.sorted_z().data();
   std::vector<double> sorted_r2(n);
   for (std::size_t k = 0; k < n; ++k) sorted_r2[k] = radius_sq[items[k]];
+  const std::vector<std::uint32_t>& cell_start = grid.cell_start();
+  const std::size_t ncell = grid.num_cells();
 
-  // Blocks of rows are searched in parallel into private buffers and joined in
-  // block order, so the list is identical for any thread count.
-  constexpr std::size_t kBlock = 512;
-  const std::size_t nblocks = (n + kBlock - 1) / kBlock;
-  std::vector<std::vector<std::uint32_t>> block_items(nblocks);
-  std::vector<std::vector<std::pair<std::uint32_t, std::uint32_t>>> block_extras(nblocks);  // (row, entry)
+  // One pass over the cells, in parallel, each cell on its own (so the rows
+  // and their order do not depend on the thread count). The particles of a
+  // cell that reach at most kReach cells (the "group", all of them with
+  // equal widths) share their candidates: the points of the runs of cells
+  // they visit that come within the largest group radius of the group's
+  // bounding box, gathered once per cell with their periodic shift applied.
+  // Each group particle then tests them all in one long loop (distances, then
+  // a branch-free compress), which is what makes the search fast: the cell
+  // visiting is paid once per cell, not once per particle. Wider particles and
+  // aliasing periodic boxes search their own runs. The rows go to per-thread
+  // buffers, then to indices_ by the offsets.
+  // Row p: its hits in the order of the runs (cells along z, y, then x, and
+  // the grid's order within a cell), then its extras (pairs that only the
+  // wider particle's radius holds) by increasing index: the order of the
+  // per-particle search.
+  //
+  // The bounding-box cut is exact in floating point: rounding is monotone, so
+  // the gaps to the box as computed are at most |dx|, |dy|, |dz| as d2
+  // computes them and their squared sum (in d2's order) is at most d2; a
+  // point whose sum exceeds the largest R^2 has d2 > R^2 for every particle
+  // of the group.
+  struct Scratch {
+    std::vector<double> cx, cy, cz, d2;  // candidates (shifted) and their squared distances
+    std::vector<std::uint32_t> cj, ci;   // their sorted indices and particle indices
+    std::vector<double> dd;              // own search (apart: the cell's candidates stay): squared distances,
+    std::vector<std::uint32_t> oj, oi;   // sorted indices and particle indices
+    EntryBuffer out;                     // this thread's rows, cell after cell
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> extras;  // (row, entry)
+  };
+  const int nthreads = std::max(1, omp_get_max_threads());
+  std::vector<Scratch> scratch(static_cast<std::size_t>(nthreads));
   std::vector<std::uint32_t> counts(n, 0);
-#pragma omp parallel for schedule(dynamic, 4)
-  for (std::size_t b = 0; b < nblocks; ++b) {
-    auto& buf = block_items[b];
-    auto& extras = block_extras[b];
-    const std::size_t end = std::min(n, (b + 1) * kBlock);
-    buf.reserve(kBlock * 256);
-    std::vector<double> dist_sq;
-    for (std::size_t p = b * kBlock; p < end; ++p) {
-      const std::size_t before = buf.size();
-      const Vec3 xp = grid.canonical(x[p]);
-      const double r2 = radius_sq[p];
-      const bool may_have_extras = r2 > r2_min;
-      // ceil(R_p / h) cells reach every point within R_p; the slack absorbs round-off in R_p / h.
-      const int reach = std::max(1, static_cast<int>(std::ceil(std::sqrt(r2) / h - 1e-9)));
-      const bool exact_shifts = grid.shifts_exact(reach);
-      const auto pu = static_cast<std::uint32_t>(p);
-      // Wide particles skip the cells of their cube that lie beyond R_p (about
-      // half of them in 3D); at the median reach that bookkeeping costs more than it saves.
-      const double prune_radius = reach > kReach ? std::sqrt(r2) : 0.0;
-      grid.for_each_cell(xp, reach, prune_radius, [&](std::uint32_t cb, std::uint32_t ce, const Vec3& shift) {
-        const std::uint32_t len = ce - cb;
-        dist_sq.resize(len);
-        double* d2 = dist_sq.data();
-        if (exact_shifts) {
-          // Distances first (a loop that vectorises), then a scalar compress.
-          const double qx = xp[0] - shift[0], qy = xp[1] - shift[1], qz = xp[2] - shift[2];
-#pragma omp simd
-          for (std::uint32_t k = 0; k < len; ++k) {
-            const double dx = qx - sx[cb + k], dy = qy - sy[cb + k], dz = qz - sz[cb + k];
-            d2[k] = dx * dx + dy * dy + dz * dz;
+  std::vector<std::uint16_t> cell_thread(ncell, 0);
+  std::vector<std::size_t> cell_pos(ncell, 0);
+  const Periodicity& per = per_;
+  const bool avx2 = neighbor_kernels::use_avx2();
+  const std::uint32_t* items_p = items.data();
+  const double* sr2 = sorted_r2.data();
+  auto reach_of = [&](double r2) { return std::max(1, static_cast<int>(std::ceil(std::sqrt(r2) / h - 1e-9))); };
+  // Appends to the thread's rows the hits of the particle at sorted index k
+  // among candidates of sorted indices cj[0 .. len) at squared distances d2.
+  auto append = [&](Scratch& sc, std::size_t k, const std::uint32_t* cj, const std::uint32_t* ci, std::size_t len,
+                    const double* d2) {
+    const double r2 = sr2[k];
+    const std::size_t at = sc.out.size();
+    sc.out.ensure(len);
+    std::uint32_t* out = sc.out.data() + at;
+    const std::uint32_t pu = items_p[k];
+    std::size_t cnt = 0;
+    for (std::size_t j = 0; j < len; ++j) {
+      out[cnt] = ci[j];
+      cnt += (d2[j] <= r2) & (ci[j] != pu);  // branch-free append
+    }
+    sc.out.set_size(at + cnt);
+    if (r2 > r2_min)
+      for (std::size_t j = 0; j < len; ++j)
+        if (d2[j] <= r2 && d2[j] > sr2[cj[j]] && ci[j] != pu) sc.extras.emplace_back(ci[j], pu);
+    return static_cast<std::uint32_t>(cnt);
+  };
+
+#pragma omp parallel
+  {
+    Scratch& sc = scratch[static_cast<std::size_t>(omp_get_thread_num())];
+    // This thread's share of the entries, as many per particle as last time.
+    const double per_particle = work_.ptr->entries_per_particle > 0.0 ? work_.ptr->entries_per_particle : 64.0;
+    sc.out.ensure(static_cast<std::size_t>(1.1 * per_particle * static_cast<double>(n) / nthreads) + 4096);
+#pragma omp for schedule(dynamic, 16)
+    for (std::size_t c = 0; c < ncell; ++c) {
+      const std::size_t c0 = cell_start[c], c1 = cell_start[c + 1];
+      cell_thread[c] = static_cast<std::uint16_t>(omp_get_thread_num());
+      cell_pos[c] = sc.out.size();
+      if (c0 == c1) continue;
+      // The group: reach <= kReach, sharing the runs of the largest such reach.
+      int group_reach = 0;
+      for (std::size_t k = c0; k < c1; ++k) {
+        const int r = reach_of(sr2[k]);
+        if (r <= kReach) group_reach = std::max(group_reach, r);
+      }
+      const bool group_ok = group_reach > 0 && grid.shifts_exact(group_reach);
+      auto in_group = [&](std::size_t k) { return group_ok && reach_of(sr2[k]) <= group_reach; };
+      std::size_t ncand = 0;
+      if (group_ok) {
+        double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0}, r2max = 0.0;
+        bool first = true;
+        std::size_t k_first = c0;
+        for (std::size_t k = c0; k < c1; ++k) {
+          if (!in_group(k)) continue;
+          const double v[3] = {sx[k], sy[k], sz[k]};
+          for (int a = 0; a < 3; ++a) {
+            lo[a] = first ? v[a] : std::min(lo[a], v[a]);
+            hi[a] = first ? v[a] : std::max(hi[a], v[a]);
           }
-        } else {
-          for (std::uint32_t k = 0; k < len; ++k)
-            d2[k] = per_.displacement(xp, Vec3(sx[cb + k], sy[cb + k], sz[cb + k])).squaredNorm();
+          if (first) k_first = k;
+          first = false;
+          r2max = std::max(r2max, sr2[k]);
         }
-        const std::size_t at = buf.size();
-        buf.resize(at + len);
-        std::uint32_t* out = buf.data() + at;
-        std::size_t cnt = 0;
-        for (std::uint32_t k = 0; k < len; ++k) {
-          out[cnt] = items[cb + k];
-          cnt += (d2[k] <= r2) & (items[cb + k] != pu);  // branch-free append
+        grid.for_each_cell(Vec3(sx[k_first], sy[k_first], sz[k_first]), group_reach, 0.0,
+                           [&](std::uint32_t cb, std::uint32_t ce, const Vec3& shift) {
+                             const std::size_t need = ncand + (ce - cb) + 8;
+                             if (sc.cx.size() < need) {
+                               const std::size_t cap = std::max<std::size_t>(need, 2 * sc.cx.size());
+                               sc.cx.resize(cap);
+                               sc.cy.resize(cap);
+                               sc.cz.resize(cap);
+                               sc.cj.resize(cap);
+                               sc.ci.resize(cap);
+                               sc.d2.resize(cap);
+                             }
+                             // The images of the run's points nearest the group (shift 0 without
+                             // periodic axes) that come within r2max of the group's box.
+                             const double sh[3] = {shift[0], shift[1], shift[2]};
+                             const std::size_t got = neighbor_kernels::box_candidates(
+                                 avx2, sx, sy, sz, cb, ce, sh, lo, hi, r2max, sc.d2.data(), sc.cj.data() + ncand);
+                             for (std::size_t i = ncand; i < ncand + got; ++i) {
+                               const std::uint32_t j = sc.cj[i];
+                               sc.cx[i] = sx[j] + sh[0];
+                               sc.cy[i] = sy[j] + sh[1];
+                               sc.cz[i] = sz[j] + sh[2];
+                               sc.ci[i] = items_p[j];
+                             }
+                             ncand += got;
+                           });
+        if (sc.d2.size() < ncand) sc.d2.resize(ncand);
+      }
+      for (std::size_t k = c0; k < c1; ++k) {
+        const double r2 = sr2[k];
+        const std::uint32_t pu = items_p[k];
+        if (in_group(k)) {
+          const std::size_t at = sc.out.size();
+          sc.out.ensure(ncand + 8);
+          const std::size_t cnt = neighbor_kernels::row_hits(avx2, sc.cx.data(), sc.cy.data(), sc.cz.data(), sc.ci.data(),
+                                                             ncand, sx[k], sy[k], sz[k], r2, pu, sc.d2.data(),
+                                                             sc.out.data() + at);
+          sc.out.set_size(at + cnt);
+          counts[pu] = static_cast<std::uint32_t>(cnt);
+          if (r2 > r2_min) {
+            const double* d2 = sc.d2.data();
+            for (std::size_t j = 0; j < ncand; ++j)
+              if (d2[j] <= r2 && d2[j] > sr2[sc.cj[j]] && sc.ci[j] != pu) sc.extras.emplace_back(sc.ci[j], pu);
+          }
+          continue;
         }
-        buf.resize(at + cnt);
-        if (may_have_extras)
-          for (std::uint32_t k = 0; k < len; ++k)
-            if (d2[k] <= r2 && d2[k] > sorted_r2[cb + k] && items[cb + k] != pu) extras.emplace_back(items[cb + k], pu);
-      });
-      counts[p] = static_cast<std::uint32_t>(buf.size() - before);
+        // The others search their own runs in full.
+        const Vec3 xp(sx[k], sy[k], sz[k]);  // canonical: what the grid stores
+        const int reach = reach_of(r2);
+        const bool exact_shifts = grid.shifts_exact(reach);
+        // Wide particles skip the cells of their cube that lie beyond R_p (about half of them in 3D).
+        const double prune_radius = reach > kReach ? std::sqrt(r2) : 0.0;
+        std::uint32_t total = 0;
+        grid.for_each_cell(xp, reach, prune_radius, [&](std::uint32_t cb, std::uint32_t ce, const Vec3& shift) {
+          const std::uint32_t len = ce - cb;
+          if (sc.dd.size() < len) {
+            sc.dd.resize(std::max<std::size_t>(len, 2 * sc.dd.size()));
+            sc.oj.resize(sc.dd.size());
+            sc.oi.resize(sc.dd.size());
+          }
+          double* d2 = sc.dd.data();
+          std::uint32_t* cj = sc.oj.data();
+          std::uint32_t* ci = sc.oi.data();
+          for (std::uint32_t j = 0; j < len; ++j) {
+            cj[j] = cb + j;
+            ci[j] = items_p[cb + j];
+          }
+          if (exact_shifts) {
+            const double qx = xp[0] - shift[0], qy = xp[1] - shift[1], qz = xp[2] - shift[2];
+#pragma omp simd
+            for (std::uint32_t j = 0; j < len; ++j) {
+              const double dx = qx - sx[cb + j], dy = qy - sy[cb + j], dz = qz - sz[cb + j];
+              d2[j] = dx * dx + dy * dy + dz * dz;
+            }
+          } else {
+            for (std::uint32_t j = 0; j < len; ++j)
+              d2[j] = per.displacement(xp, Vec3(sx[cb + j], sy[cb + j], sz[cb + j])).squaredNorm();
+          }
+          total += append(sc, k, cj, ci, len, d2);
+        });
+        counts[pu] = total;
+      }
     }
   }
-  // Row p: its own hits, then the extras from wider particles in block order.
-  std::vector<std::uint32_t> extra_count(n, 0);
-  for (const auto& ex : block_extras)
-    for (const auto& [row, entry] : ex) ++extra_count[row];
+  // Extras of each row by increasing index (the wider particles' order), by
+  // two counting passes: the rows by wider particle, then (below) each row's
+  // extras filled in that order.
+  std::vector<std::uint32_t> extra_count(n, 0), by_wide_start(n + 1, 0), by_wide;
+  {
+    for (const Scratch& sc : scratch)
+      for (const auto& [row, entry] : sc.extras) {
+        ++extra_count[row];
+        ++by_wide_start[entry + 1];
+      }
+    for (std::size_t p = 0; p < n; ++p) by_wide_start[p + 1] += by_wide_start[p];
+    by_wide.resize(by_wide_start[n]);
+    std::vector<std::uint32_t> fill(by_wide_start.begin(), by_wide_start.end() - 1);
+    for (Scratch& sc : scratch) {
+      for (const auto& [row, entry] : sc.extras) by_wide[fill[entry]++] = row;
+      std::vector<std::pair<std::uint32_t, std::uint32_t>>().swap(sc.extras);
+    }
+  }
   offsets_.assign(n + 1, 0);
   for (std::size_t p = 0; p < n; ++p) offsets_[p + 1] = offsets_[p] + counts[p] + extra_count[p];
   indices_.resize(offsets_[n]);
+  std::uint32_t* const dst = indices_.data();
 #pragma omp parallel for schedule(static)
-  for (std::size_t b = 0; b < nblocks; ++b) {
-    const std::uint32_t* src = block_items[b].data();
-    const std::size_t end = std::min(n, (b + 1) * kBlock);
-    for (std::size_t p = b * kBlock; p < end; ++p) {
-      std::copy(src, src + counts[p], indices_.begin() + offsets_[p]);
+  for (std::size_t c = 0; c < ncell; ++c) {
+    const std::uint32_t* src = scratch[cell_thread[c]].out.data() + cell_pos[c];
+    for (std::size_t k = cell_start[c]; k < cell_start[c + 1]; ++k) {
+      const std::uint32_t p = items_p[k];
+      std::copy(src, src + counts[p], dst + offsets_[p]);
       src += counts[p];
     }
   }
-  std::vector<std::uint32_t> fill(n, 0);
-  for (const auto& ex : block_extras)
-    for (const auto& [row, entry] : ex) indices_[offsets_[row] + counts[row] + fill[row]++] = entry;
+  scratch.clear();  // frees the per-thread rows
+  work_.ptr->entries_per_particle = n ? static_cast<double>(offsets_[n]) / static_cast<double>(n) : 0.0;
+  {
+    std::vector<std::uint32_t>& fill = extra_count;  // reused: extras written so far per row
+    std::fill(fill.begin(), fill.end(), 0u);
+    for (std::size_t p = 0; p < n; ++p)
+      for (std::uint32_t i = by_wide_start[p]; i < by_wide_start[p + 1]; ++i) {
+        const std::uint32_t row = by_wide[i];
+        dst[offsets_[row] + counts[row] + fill[row]++] = static_cast<std::uint32_t>(p);
+      }
+  }
 
   x_build_ = x;
   s_build_ = width_s;
