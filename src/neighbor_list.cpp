@@ -2,8 +2,6 @@
 
 #include <omp.h>
 
-#include <sys/mman.h>
-
 #include <algorithm>
 #include <cstdlib>
 #include <cstring>
@@ -99,45 +97,8 @@ void NeighborOptions::validate() const {
 
 struct NeighborList::Workspace {
   CellGrid grid;
-  double entries_per_particle = 0.0;  // of the last build: sizes the next build's buffers
 };
 
-namespace {
-// A growable array of row entries that is neither zeroed nor copied on
-// growth more than needed; large ones are asked to be backed by huge pages
-// (fewer page faults on memory that is written once per build).
-class EntryBuffer {
- public:
-  EntryBuffer() = default;
-  EntryBuffer(const EntryBuffer&) = delete;
-  EntryBuffer& operator=(const EntryBuffer&) = delete;
-  ~EntryBuffer() { std::free(p_); }
-  std::uint32_t* data() { return p_; }
-  const std::uint32_t* data() const { return p_; }
-  std::size_t size() const { return size_; }
-  void set_size(std::size_t s) { size_ = s; }
-  // Room for `extra` more entries after size().
-  void ensure(std::size_t extra) {
-    if (size_ + extra <= cap_) return;
-    constexpr std::size_t kHuge = std::size_t{1} << 21;
-    std::size_t bytes = std::max(size_ + extra, 2 * cap_) * sizeof(std::uint32_t);
-    bytes = (bytes + kHuge - 1) / kHuge * kHuge;
-    auto* q = static_cast<std::uint32_t*>(std::aligned_alloc(kHuge, bytes));
-    if (!q) throw std::bad_alloc();
-#ifdef MADV_HUGEPAGE
-    madvise(q, bytes, MADV_HUGEPAGE);  // advice only: failure is harmless
-#endif
-    if (size_) std::memcpy(q, p_, size_ * sizeof(std::uint32_t));
-    std::free(p_);
-    p_ = q;
-    cap_ = bytes / sizeof(std::uint32_t);
-  }
-
- private:
-  std::uint32_t* p_ = nullptr;
-  std::size_t size_ = 0, cap_ = 0;
-};
-}  // namespace
 
 NeighborList::WorkspaceHandle::WorkspaceHandle() = default;
 NeighborList::WorkspaceHandle::~WorkspaceHandle() = default;
@@ -228,60 +189,74 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
     std::vector<std::uint32_t> cj, ci;   // their sorted indices and particle indices
     std::vector<double> dd;              // own search (apart: the cell's candidates stay): squared distances,
     std::vector<std::uint32_t> oj, oi;   // sorted indices and particle indices
-    EntryBuffer out;                     // this thread's rows, cell after cell
+    std::vector<std::uint32_t> row;      // the row being searched
     std::vector<std::pair<std::uint32_t, std::uint32_t>> extras;  // (row, entry)
   };
   const int nthreads = std::max(1, omp_get_max_threads());
   std::vector<Scratch> scratch(static_cast<std::size_t>(nthreads));
   std::vector<std::uint32_t> counts(n, 0);
-  std::vector<std::uint16_t> cell_thread(ncell, 0);
-  std::vector<std::size_t> cell_pos(ncell, 0);
   const Periodicity& per = per_;
   const bool avx2 = neighbor_kernels::use_avx2();
   const std::uint32_t* items_p = items.data();
   const double* sr2 = sorted_r2.data();
-  auto reach_of = [&](double r2) { return std::max(1, static_cast<int>(std::ceil(std::sqrt(r2) / h - 1e-9))); };
-  // Appends to the thread's rows the hits of the particle at sorted index k
-  // among candidates of sorted indices cj[0 .. len) at squared distances d2.
-  auto append = [&](Scratch& sc, std::size_t k, const std::uint32_t* cj, const std::uint32_t* ci, std::size_t len,
-                    const double* d2) {
+  // ceil(R_p / h) cells reach every point within R_p; the slack absorbs round-off in R_p / h.
+  std::vector<int> sorted_reach(n);
+#pragma omp parallel for schedule(static)
+  for (std::size_t k = 0; k < n; ++k)
+    sorted_reach[k] = static_cast<int>(std::clamp(std::ceil(std::sqrt(sorted_r2[k]) / h - 1e-9), 1.0, 1e9));
+  // Writes to sc.row from position at the hits of the particle at sorted
+  // index k among candidates of sorted indices cj[0 .. len) at squared
+  // distances d2; returns how many. Extras: see below.
+  auto append = [&](Scratch& sc, std::size_t at, std::size_t k, const std::uint32_t* cj, const std::uint32_t* ci,
+                    std::size_t len, const double* d2, bool extras) {
     const double r2 = sr2[k];
-    const std::size_t at = sc.out.size();
-    sc.out.ensure(len);
-    std::uint32_t* out = sc.out.data() + at;
+    if (sc.row.size() < at + len + 8) sc.row.resize(std::max(at + len + 8, 2 * sc.row.size()));
+    std::uint32_t* out = sc.row.data() + at;
     const std::uint32_t pu = items_p[k];
     std::size_t cnt = 0;
     for (std::size_t j = 0; j < len; ++j) {
       out[cnt] = ci[j];
       cnt += (d2[j] <= r2) & (ci[j] != pu);  // branch-free append
     }
-    sc.out.set_size(at + cnt);
-    if (r2 > r2_min)
+    if (extras && r2 > r2_min)
       for (std::size_t j = 0; j < len; ++j)
         if (d2[j] <= r2 && d2[j] > sr2[cj[j]] && ci[j] != pu) sc.extras.emplace_back(ci[j], pu);
     return static_cast<std::uint32_t>(cnt);
   };
 
-#pragma omp parallel
+  // Two passes with the same search: the first counts the rows and collects
+  // the extras, the second writes the rows in place (indices_ keeps its
+  // storage from build to build: no per-build buffers of the list's size).
+  std::vector<std::uint32_t> extra_count(n, 0), by_wide_start(n + 1, 0), by_wide;
+  std::uint32_t* dst = nullptr;
+  bool mismatch = false;
+  for (const int pass : {1, 2}) {
+#pragma omp parallel reduction(|| : mismatch)
   {
     Scratch& sc = scratch[static_cast<std::size_t>(omp_get_thread_num())];
-    // This thread's share of the entries, as many per particle as last time.
-    const double per_particle = work_.ptr->entries_per_particle > 0.0 ? work_.ptr->entries_per_particle : 64.0;
-    sc.out.ensure(static_cast<std::size_t>(1.1 * per_particle * static_cast<double>(n) / nthreads) + 4096);
+    // The row of sorted index k, count entries in sc.row: counted, or checked and copied.
+    auto finish_row = [&](std::size_t k, std::uint32_t count) {
+      const std::uint32_t p = items_p[k];
+      if (pass == 1) {
+        counts[p] = count;
+      } else if (count != counts[p]) {
+        mismatch = true;
+      } else {
+        std::memcpy(dst + offsets_[p], sc.row.data(), count * sizeof(std::uint32_t));
+      }
+    };
 #pragma omp for schedule(dynamic, 16)
     for (std::size_t c = 0; c < ncell; ++c) {
       const std::size_t c0 = cell_start[c], c1 = cell_start[c + 1];
-      cell_thread[c] = static_cast<std::uint16_t>(omp_get_thread_num());
-      cell_pos[c] = sc.out.size();
       if (c0 == c1) continue;
       // The group: reach <= kReach, sharing the runs of the largest such reach.
       int group_reach = 0;
       for (std::size_t k = c0; k < c1; ++k) {
-        const int r = reach_of(sr2[k]);
+        const int r = sorted_reach[k];
         if (r <= kReach) group_reach = std::max(group_reach, r);
       }
       const bool group_ok = group_reach > 0 && grid.shifts_exact(group_reach);
-      auto in_group = [&](std::size_t k) { return group_ok && reach_of(sr2[k]) <= group_reach; };
+      auto in_group = [&](std::size_t k) { return group_ok && sorted_reach[k] <= group_reach; };
       std::size_t ncand = 0;
       if (group_ok) {
         double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0}, r2max = 0.0;
@@ -330,14 +305,12 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
         const double r2 = sr2[k];
         const std::uint32_t pu = items_p[k];
         if (in_group(k)) {
-          const std::size_t at = sc.out.size();
-          sc.out.ensure(ncand + 8);
+          if (sc.row.size() < ncand + 8) sc.row.resize(std::max(ncand + 8, 2 * sc.row.size()));
           const std::size_t cnt = neighbor_kernels::row_hits(avx2, sc.cx.data(), sc.cy.data(), sc.cz.data(), sc.ci.data(),
                                                              ncand, sx[k], sy[k], sz[k], r2, pu, sc.d2.data(),
-                                                             sc.out.data() + at);
-          sc.out.set_size(at + cnt);
-          counts[pu] = static_cast<std::uint32_t>(cnt);
-          if (r2 > r2_min) {
+                                                             sc.row.data());
+          finish_row(k, static_cast<std::uint32_t>(cnt));
+          if (pass == 1 && r2 > r2_min) {
             const double* d2 = sc.d2.data();
             for (std::size_t j = 0; j < ncand; ++j)
               if (d2[j] <= r2 && d2[j] > sr2[sc.cj[j]] && sc.ci[j] != pu) sc.extras.emplace_back(sc.ci[j], pu);
@@ -346,7 +319,7 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
         }
         // The others search their own runs in full.
         const Vec3 xp(sx[k], sy[k], sz[k]);  // canonical: what the grid stores
-        const int reach = reach_of(r2);
+        const int reach = sorted_reach[k];
         const bool exact_shifts = grid.shifts_exact(reach);
         // Wide particles skip the cells of their cube that lie beyond R_p (about half of them in 3D).
         const double prune_radius = reach > kReach ? std::sqrt(r2) : 0.0;
@@ -376,16 +349,16 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
             for (std::uint32_t j = 0; j < len; ++j)
               d2[j] = per.displacement(xp, Vec3(sx[cb + j], sy[cb + j], sz[cb + j])).squaredNorm();
           }
-          total += append(sc, k, cj, ci, len, d2);
+          total += append(sc, total, k, cj, ci, len, d2, pass == 1);
         });
-        counts[pu] = total;
+        finish_row(k, total);
       }
     }
   }
+  if (pass == 2) break;
   // Extras of each row by increasing index (the wider particles' order), by
   // two counting passes: the rows by wider particle, then (below) each row's
   // extras filled in that order.
-  std::vector<std::uint32_t> extra_count(n, 0), by_wide_start(n + 1, 0), by_wide;
   {
     for (const Scratch& sc : scratch)
       for (const auto& [row, entry] : sc.extras) {
@@ -403,18 +376,9 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
   offsets_.assign(n + 1, 0);
   for (std::size_t p = 0; p < n; ++p) offsets_[p + 1] = offsets_[p] + counts[p] + extra_count[p];
   indices_.resize(offsets_[n]);
-  std::uint32_t* const dst = indices_.data();
-#pragma omp parallel for schedule(static)
-  for (std::size_t c = 0; c < ncell; ++c) {
-    const std::uint32_t* src = scratch[cell_thread[c]].out.data() + cell_pos[c];
-    for (std::size_t k = cell_start[c]; k < cell_start[c + 1]; ++k) {
-      const std::uint32_t p = items_p[k];
-      std::copy(src, src + counts[p], dst + offsets_[p]);
-      src += counts[p];
-    }
+  dst = indices_.data();
   }
-  scratch.clear();  // frees the per-thread rows
-  work_.ptr->entries_per_particle = n ? static_cast<double>(offsets_[n]) / static_cast<double>(n) : 0.0;
+  if (mismatch) throw std::logic_error("NeighborList::build: the counting and writing passes disagree");
   {
     std::vector<std::uint32_t>& fill = extra_count;  // reused: extras written so far per row
     std::fill(fill.begin(), fill.end(), 0u);
