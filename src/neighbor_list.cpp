@@ -154,6 +154,7 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
   grid.build(x, r_cell / kReach, per_, kReach);
   const double h = grid.min_cell_width();
   const double r2_min = n ? *std::min_element(radius_sq.begin(), radius_sq.end()) : 0.0;
+  const double r2_max_all = n ? *std::max_element(radius_sq.begin(), radius_sq.end()) : 0.0;
   const auto& items = grid.items();
   const double* sx = grid.sorted_x().data();
   const double* sy = grid.sorted_y().data();
@@ -186,10 +187,13 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
   // of the group.
   struct Scratch {
     std::vector<double> cx, cy, cz, d2;  // candidates (shifted) and their squared distances
+    std::vector<double> cr2;             // candidates' R^2 (variable widths only)
+    std::vector<std::uint8_t> hit;       // extras test per candidate
     std::vector<std::uint32_t> cj, ci;   // their sorted indices and particle indices
     std::vector<double> dd;              // own search (apart: the cell's candidates stay): squared distances,
     std::vector<std::uint32_t> oj, oi;   // sorted indices and particle indices
     std::vector<std::uint32_t> row;      // the row being searched
+    std::vector<std::uint32_t> own_rows; // rows of the particles searching alone, kept from pass 1 to pass 2
     std::vector<std::pair<std::uint32_t, std::uint32_t>> extras;  // (row, entry)
   };
   const int nthreads = std::max(1, omp_get_max_threads());
@@ -228,6 +232,8 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
   // the extras, the second writes the rows in place (indices_ keeps its
   // storage from build to build: no per-build buffers of the list's size).
   std::vector<std::uint32_t> extra_count(n, 0), by_wide_start(n + 1, 0), by_wide;
+  std::vector<std::uint16_t> own_thread(n, 0);  // where pass 1 left the rows of the particles searching alone
+  std::vector<std::size_t> own_pos(n, 0);
   std::uint32_t* dst = nullptr;
   bool mismatch = false;
   for (const int pass : {1, 2}) {
@@ -300,6 +306,11 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
                              ncand += got;
                            });
         if (sc.d2.size() < ncand) sc.d2.resize(ncand);
+        if (r2_max_all > r2_min) {  // variable widths: the candidates' radii for the extras
+          if (sc.cr2.size() < ncand) sc.cr2.resize(ncand);
+          if (sc.hit.size() < ncand + 8) sc.hit.resize(ncand + 8);
+          for (std::size_t i = 0; i < ncand; ++i) sc.cr2[i] = sr2[sc.cj[i]];
+        }
       }
       for (std::size_t k = c0; k < c1; ++k) {
         const double r2 = sr2[k];
@@ -311,13 +322,31 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
                                                              sc.row.data());
           finish_row(k, static_cast<std::uint32_t>(cnt));
           if (pass == 1 && r2 > r2_min) {
+            // Pairs that only this particle's radius holds: a vectorisable test, then a scan 8 at a time.
             const double* d2 = sc.d2.data();
+            const double* cr2 = sc.cr2.data();
+            const std::uint32_t* ci = sc.ci.data();
+            std::uint8_t* hit = sc.hit.data();
+#pragma omp simd
             for (std::size_t j = 0; j < ncand; ++j)
-              if (d2[j] <= r2 && d2[j] > sr2[sc.cj[j]] && sc.ci[j] != pu) sc.extras.emplace_back(sc.ci[j], pu);
+              hit[j] = static_cast<std::uint8_t>((d2[j] <= r2) & (d2[j] > cr2[j]) & (ci[j] != pu));
+            for (std::size_t j = 0; j < ncand; j += 8) {
+              std::uint64_t word;
+              std::memcpy(&word, hit + j, 8);  // hit has 8 spare bytes
+              if (!word) continue;
+              for (std::size_t i = j; i < std::min(j + 8, ncand); ++i)
+                if (hit[i]) sc.extras.emplace_back(ci[i], pu);
+            }
           }
           continue;
         }
-        // The others search their own runs in full.
+        // The others search their own runs in full, in the first pass only
+        // (their rows are the longest: kept for the second).
+        if (pass == 2) {
+          const Scratch& from = scratch[own_thread[pu]];
+          std::memcpy(dst + offsets_[pu], from.own_rows.data() + own_pos[pu], counts[pu] * sizeof(std::uint32_t));
+          continue;
+        }
         const Vec3 xp(sx[k], sy[k], sz[k]);  // canonical: what the grid stores
         const int reach = sorted_reach[k];
         const bool exact_shifts = grid.shifts_exact(reach);
@@ -352,6 +381,9 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
           total += append(sc, total, k, cj, ci, len, d2, pass == 1);
         });
         finish_row(k, total);
+        own_thread[pu] = static_cast<std::uint16_t>(omp_get_thread_num());
+        own_pos[pu] = sc.own_rows.size();
+        sc.own_rows.insert(sc.own_rows.end(), sc.row.begin(), sc.row.begin() + total);
       }
     }
   }
