@@ -49,6 +49,8 @@ class CellGrid {
   double min_cell_width() const;       // smallest cell width over the used axes
   std::size_t num_cells() const { return cell_start_.empty() ? 0 : cell_start_.size() - 1; }
   const std::vector<std::uint32_t>& items() const { return items_; }
+  // Cell c holds items()[cell_start()[c] .. cell_start()[c + 1]).
+  const std::vector<std::uint32_t>& cell_start() const { return cell_start_; }
   // Coordinates of items() in cell order (canonical(): wrapped along periodic axes).
   const std::vector<double>& sorted_x() const { return sx_; }
   const std::vector<double>& sorted_y() const { return sy_; }

@@ -3,9 +3,13 @@
 // images and with different widths; the cut-off comes from the kernel tolerance.
 #include <gtest/gtest.h>
 
+#include <omp.h>
+
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <set>
+#include <string>
 
 #include "otfp/density.hpp"
 #include "otfp/geometry.hpp"
@@ -45,6 +49,37 @@ PairSet brute_pairs(const NeighborList& nl, const std::vector<Vec3>& x, const st
           per.displacement(x[p], x[q]).norm() <= std::max(nl.particle_radius(s[p]), nl.particle_radius(s[q])))
         out.emplace(p, q);
   return out;
+}
+
+// Builds with the given OpenMP thread count and neighbour kernels ("" = the default: AVX2 where the CPU has it).
+NeighborList build_with(const std::vector<Vec3>& x, const std::vector<double>& s, const Periodicity& per,
+                        int threads, const std::string& kernels = "", NeighborOptions o = {}) {
+  const int before = omp_get_max_threads();
+  omp_set_num_threads(threads);
+  if (kernels.empty()) unsetenv("OTFP_NEIGHBOR_KERNELS");
+  else setenv("OTFP_NEIGHBOR_KERNELS", kernels.c_str(), 1);
+  NeighborList nl(o);
+  nl.build(x, s, per);
+  unsetenv("OTFP_NEIGHBOR_KERNELS");
+  omp_set_num_threads(before);
+  return nl;
+}
+
+// Same rows in the same order.
+void expect_identical(const NeighborList& a, const NeighborList& b, const std::string& what) {
+  EXPECT_EQ(a.offsets(), b.offsets()) << what;
+  EXPECT_EQ(a.indices(), b.indices()) << what;
+}
+
+// Each row free of duplicates and of the particle itself.
+void expect_clean_rows(const NeighborList& nl, const std::string& what) {
+  for (std::size_t p = 0; p < nl.size(); ++p) {
+    std::set<std::uint32_t> row;
+    for (std::uint32_t k = nl.offsets()[p]; k < nl.offsets()[p + 1]; ++k) {
+      EXPECT_NE(nl.indices()[k], p) << what;
+      EXPECT_TRUE(row.insert(nl.indices()[k]).second) << what << ": duplicate in row " << p;
+    }
+  }
 }
 
 }  // namespace
@@ -269,5 +304,107 @@ TEST(NeighborList, UnwrappedPositionsInAPeriodicBoxMatchBruteForce) {
     int outside = 0;
     for (const auto& y : ps.positions()) outside += (y.head(dim).array() < 0.0).any() || (y.head(dim).array() >= 2.0).any();
     EXPECT_GT(outside, 100);
+  }
+}
+
+// The search shares candidates among the particles of a cell (those reaching
+// at most two cells) and lets the others search alone (wider blobs, or a
+// periodic box too small for the shared cells): with a broad spread of widths
+// every kind occurs, in 1D, 2D and 3D, open and periodic. Both builds of the
+// kernels (AVX2 and generic) and 1 or 2 threads give the same list, row order
+// included, and it equals brute force.
+TEST(NeighborList, MatchesBruteForceWithVariableWidths) {
+  for (int dim = 1; dim <= 3; ++dim) {
+    for (bool periodic : {false, true}) {
+      const std::size_t n = dim == 1 ? 700 : 1500;
+      ParticleSet ps = random_cloud(dim, n, 0.0, 2.0, dim == 3 ? 0.03 : 0.015, 0.6, 1.0, 800 + dim);
+      Rng rng(41 + dim);
+      for (std::size_t p = 0; p < ps.size(); p += 23) ps.widths()[p] *= rng.uniform(2.0, 5.0);
+      DomainPtr box = make_periodic_box(dim, Vec3::Zero(), Vec3::Constant(2.0));
+      const Periodicity per = periodic ? Periodicity::from_domain(*box) : Periodicity::none(dim);
+      const std::string what = "d=" + std::to_string(dim) + " periodic=" + std::to_string(periodic);
+      const NeighborList nl = build_with(ps.positions(), ps.widths(), per, 1);
+      EXPECT_EQ(list_pairs(nl), brute_pairs(nl, ps.positions(), ps.widths(), per)) << what;
+      expect_clean_rows(nl, what);
+      expect_identical(nl, build_with(ps.positions(), ps.widths(), per, 2), what + " 2 threads");
+      expect_identical(nl, build_with(ps.positions(), ps.widths(), per, 2, "generic"), what + " generic");
+      expect_identical(nl, build_with(ps.positions(), ps.widths(), per, 1, "generic"), what + " generic 1 thread");
+    }
+  }
+}
+
+// Equal widths (the shared search only) in a uniform cloud, the benchmark's
+// set-up at a small size: threads and kernel builds agree exactly.
+TEST(NeighborList, EqualWidthsAreIdenticalForThreadsAndKernels) {
+  const std::size_t n = 3000;
+  const double dr = 1.0 / std::cbrt(static_cast<double>(n));
+  ParticleSet ps = random_cloud(3, n, 0.0, 1.0, dr / std::sqrt(2.0), 0.0, 1.0, 4242);
+  const NeighborList nl = build_with(ps.positions(), ps.widths(), Periodicity::none(3), 1);
+  EXPECT_EQ(list_pairs(nl), brute_pairs(nl, ps.positions(), ps.widths(), Periodicity::none(3)));
+  expect_clean_rows(nl, "uniform");
+  expect_identical(nl, build_with(ps.positions(), ps.widths(), Periodicity::none(3), 2), "2 threads");
+  expect_identical(nl, build_with(ps.positions(), ps.widths(), Periodicity::none(3), 2, "generic"), "generic");
+  // A rebuild (buffers sized from the last build) gives the same list again.
+  NeighborList again = nl;
+  again.build(ps.positions(), ps.widths(), Periodicity::none(3));
+  again.build(ps.positions(), ps.widths(), Periodicity::none(3));
+  expect_identical(nl, again, "rebuild");
+}
+
+// Small periodic boxes: eleven cells a side (the shared search, shifted
+// images) and four (the shifts of two cells each side alias: every particle
+// searches alone with minimum images), one wider blob among equal ones; pairs
+// across the box edge and the list order do not depend on threads or kernels.
+TEST(NeighborList, SmallPeriodicBoxesMatchBruteForce) {
+  for (int dim = 1; dim <= 3; ++dim) {
+    for (double skin : {0.05, 0.3}) {  // R ~0.18 (11 cells a side) and ~0.43 (4 cells: the shifts alias)
+      DomainPtr box = make_periodic_box(dim, Vec3::Zero(), Vec3::Constant(1.0));
+      ParticleSet ps = random_cloud(dim, dim == 1 ? 60 : 400, 0.0, 1.0, 0.03, 0.0, 1.0, 900 + dim);
+      ps.widths()[5] *= 1.5;
+      NeighborOptions o;
+      o.skin = skin;
+      const Periodicity per = Periodicity::from_domain(*box);
+      const std::string what = "d=" + std::to_string(dim) + " skin=" + std::to_string(skin);
+      const NeighborList nl = build_with(ps.positions(), ps.widths(), per, 1, "", o);
+      EXPECT_EQ(list_pairs(nl), brute_pairs(nl, ps.positions(), ps.widths(), per)) << what;
+      expect_clean_rows(nl, what);
+      expect_identical(nl, build_with(ps.positions(), ps.widths(), per, 2, "", o), what + " 2 threads");
+      expect_identical(nl, build_with(ps.positions(), ps.widths(), per, 2, "generic", o), what + " generic");
+    }
+  }
+}
+
+// Coincident particles (distance 0) are neighbours of each other, never of
+// themselves; particles on cell and box edges are found from both sides.
+TEST(NeighborList, CoincidentAndGridAlignedParticles) {
+  for (int dim = 1; dim <= 3; ++dim) {
+    std::vector<Vec3> x;
+    std::vector<double> s;
+    const int m = dim == 3 ? 9 : (dim == 2 ? 25 : 200);
+    for (int i = 0; i < m; ++i)
+      for (int j = 0; j < (dim >= 2 ? m : 1); ++j)
+        for (int k = 0; k < (dim == 3 ? m : 1); ++k) {
+          x.emplace_back(i * 0.1, j * 0.1, k * 0.1);
+          s.push_back(0.02);
+        }
+    const std::size_t base = x.size();
+    for (std::size_t p = 0; p < base; p += 7) {  // copies on top of every seventh point
+      x.push_back(x[p]);
+      s.push_back(0.03);
+    }
+    NeighborOptions o;
+    o.skin = 0.1005 - cutoff_radius(0.02, 1e-8);  // R just above the lattice spacing: no ties with brute force
+    for (const bool periodic : {false, true}) {
+      DomainPtr box = make_periodic_box(dim, Vec3::Zero(), Vec3::Constant(0.1 * m));
+      const Periodicity per = periodic ? Periodicity::from_domain(*box) : Periodicity::none(dim);
+      const std::string what = "d=" + std::to_string(dim) + " periodic=" + std::to_string(periodic);
+      const NeighborList nl = build_with(x, s, per, 1, "", o);
+      EXPECT_EQ(list_pairs(nl), brute_pairs(nl, x, s, per)) << what;
+      expect_clean_rows(nl, what);
+      expect_identical(nl, build_with(x, s, per, 2, "generic", o), what + " generic");
+      const PairSet got = list_pairs(nl);
+      for (std::size_t p = 0; p < base; p += 7)
+        EXPECT_TRUE(got.count({static_cast<std::uint32_t>(p), static_cast<std::uint32_t>(base + p / 7)})) << what;
+    }
   }
 }
