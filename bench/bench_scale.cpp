@@ -1,0 +1,123 @@
+// Whole implicit steps at scale: a Simulation in the unit cube (3D), n
+// particles (a jittered cubic lattice of round(n^(1/3))^3 sites) at density 1, beta = 2/dr^2, the x- face Dirichlet at
+// rho = 1 (boundary-layer projection each step), the other faces no-flux
+// walls (image blobs), Ceres L-BFGS with the library's default tolerances.
+// One process per size, so that its peak memory is that of this size only:
+//   otfp_bench_scale --n 1000000 --dt-factor 1 --threads 2 --steps 2
+// prints one line of key = value pairs per run: time per step (median of the
+// timed steps after one warm-up step), evaluations and list builds per step,
+// and the peak and final resident memory per particle (above the process's
+// resident size before the set-up). bench/scaling.sh runs the ladder
+// n = 1e3 ... 1e6 and fits the exponent.
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "otfp/geometry.hpp"
+#include "otfp/parameters.hpp"
+#include "otfp/simulation.hpp"
+
+using namespace otfp;
+
+namespace {
+
+// A field of /proc/self/status in bytes (VmRSS, VmHWM); 0 where unavailable.
+double status_bytes(const char* key) {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  const std::size_t len = std::strlen(key);
+  while (std::getline(in, line))
+    if (line.compare(0, len, key) == 0 && line.size() > len && line[len] == ':')
+      return 1024.0 * std::atof(line.c_str() + len + 1);
+  return 0.0;
+}
+
+int usage(const char* why) {
+  std::fprintf(stderr, "otfp_bench_scale: %s\nusage: otfp_bench_scale --n N [--dt-factor F] [--threads T] [--steps K]\n",
+               why);
+  return 2;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  long n = 0, threads = 1, steps = 2;
+  double factor = 1.0;
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string key = argv[i];
+    char* end = nullptr;
+    if (key == "--n") n = std::strtol(argv[i + 1], &end, 10);
+    else if (key == "--threads") threads = std::strtol(argv[i + 1], &end, 10);
+    else if (key == "--steps") steps = std::strtol(argv[i + 1], &end, 10);
+    else if (key == "--dt-factor") factor = std::strtod(argv[i + 1], &end);
+    else return usage(("unknown option " + key).c_str());
+    if (end == nullptr || *end != '\0') return usage(("bad value for " + key).c_str());
+  }
+  if (argc % 2 == 0) return usage("options come in pairs");
+  if (n < 8 || n > 100000000) return usage("--n must be in [8, 1e8]");
+  if (threads < 1 || threads > 256) return usage("--threads must be in [1, 256]");
+  if (steps < 1 || steps > 1000) return usage("--steps must be in [1, 1000]");
+  if (!(factor > 0.0 && factor <= 1e4)) return usage("--dt-factor must be in (0, 1e4]");
+  omp_set_num_threads(static_cast<int>(threads));
+
+  const double rss0 = status_bytes("VmRSS");
+  DomainPtr box = make_box(3, Vec3::Zero(), Vec3::Ones());
+  const auto side = std::lround(std::cbrt(static_cast<double>(n)));
+  n = side * side * side;
+  const auto count = static_cast<std::size_t>(n);
+  const PaperParameters pp = paper_parameters(box->volume(), count, 3, 1.0, 1.0, 2.0);
+  SimulationOptions o;
+  o.particle_mass = 1.0 / static_cast<double>(count);
+  o.width_s = pp.width_s;
+  o.barrier_stiffness = pp.barrier_C;
+  o.projection.layer_b = pp.layer_b;
+  o.implicit.rho_ref = 1.0;
+  Simulation sim(box, {{box->patch_by_name("x-"), PatchKind::Dirichlet, 1.0}}, o);
+  // A cubic lattice of k^3 ~ n sites jittered by 0.1 spacing: near the
+  // settled arrangement of a long run (a uniform random fill needs many steps
+  // and several times the evaluations per step to relax first).
+  ParticleSet ps(3);
+  ps.reserve(count);
+  Rng rng(2026);
+  const double h = 1.0 / static_cast<double>(side);
+  for (long i = 0; i < side; ++i)
+    for (long j = 0; j < side; ++j)
+      for (long k = 0; k < side; ++k) {
+        Vec3 x = h * Vec3(i + 0.5, j + 0.5, k + 0.5);
+        for (int a = 0; a < 3; ++a) x[a] += 0.1 * h * rng.uniform(-1.0, 1.0);
+        ps.add(x, pp.width_s, o.particle_mass);
+      }
+  sim.start(std::move(ps));
+
+  const double dt = factor * pp.dt_explicit;
+  std::vector<double> wall, evals, builds;
+  for (long k = 0; k <= steps; ++k) {
+    const SimulationStep st = sim.advance(dt);
+    if (k == 0) continue;  // warm-up: leave the random fill
+    wall.push_back(st.wall_seconds);
+    evals.push_back(st.diffusion.evaluations);
+    builds.push_back(st.diffusion.list_builds);
+  }
+  auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v[v.size() / 2];
+  };
+  const double hwm = status_bytes("VmHWM");
+  const Functional& f = sim.implicit_stepper()->functional();
+  std::printf("list rows = %zu entries/row = %.1f images = %zu\n", f.list().size(),
+              static_cast<double>(f.list().num_entries()) / static_cast<double>(f.list().size()), f.images().size());
+  std::printf(
+      "n = %ld threads = %ld dt_factor = %g steps = %ld particles_now = %zu seconds_per_step = %.3f "
+      "evaluations_per_step = %.0f list_builds_per_step = %.0f peak_bytes_per_particle = %.0f "
+      "resident_bytes_per_particle = %.0f\n",
+      n, threads, factor, steps, sim.particles().size(), median(wall), median(evals), median(builds),
+      (hwm - rss0) / static_cast<double>(n), (status_bytes("VmRSS") - rss0) / static_cast<double>(n));
+  return 0;
+}
