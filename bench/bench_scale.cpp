@@ -111,13 +111,12 @@ int main(int argc, char** argv) {
   };
   const double hwm = status_bytes("VmHWM");
   const Functional& f = sim.implicit_stepper()->functional();
-  std::printf("list rows = %zu entries/row = %.1f images = %zu\n", f.list().size(),
-              static_cast<double>(f.list().num_entries()) / static_cast<double>(f.list().size()), f.images().size());
   std::printf(
       "n = %ld threads = %ld dt_factor = %g steps = %ld particles_now = %zu seconds_per_step = %.3f "
       "evaluations_per_step = %.0f list_builds_per_step = %.0f peak_bytes_per_particle = %.0f "
-      "resident_bytes_per_particle = %.0f\n",
+      "resident_bytes_per_particle = %.0f list_rows = %zu images = %zu entries_per_row = %.1f\n",
       n, threads, factor, steps, sim.particles().size(), median(wall), median(evals), median(builds),
-      (hwm - rss0) / static_cast<double>(n), (status_bytes("VmRSS") - rss0) / static_cast<double>(n));
+      (hwm - rss0) / static_cast<double>(n), (status_bytes("VmRSS") - rss0) / static_cast<double>(n), f.list().size(), f.images().size(),
+      static_cast<double>(f.list().num_entries()) / static_cast<double>(std::max<std::size_t>(1, f.list().size())));
   return 0;
 }

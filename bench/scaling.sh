@@ -17,6 +17,6 @@ trap 'rm -f "$out"' EXIT
 for n in "${sizes[@]}"; do
   "$exe" --n "$n" --threads "$threads" --dt-factor "$factor" --steps 2 | tee -a "$out"
 done
-awk '{ for (i = 1; i < NF; ++i) if ($(i + 1) == "=") v[$i] = $(i + 2);
+awk '$1 == "n" { for (i = 1; i < NF; ++i) if ($(i + 1) == "=") v[$i] = $(i + 2);
        x = log(v["n"]); y = log(v["seconds_per_step"]); sx += x; sy += y; sxx += x * x; sxy += x * y; k++ }
      END { if (k > 1) printf "fitted exponent: seconds per step ~ n^%.2f over %d sizes\n", (k * sxy - sx * sy) / (k * sxx - sx * sx), k }' "$out"
