@@ -102,13 +102,25 @@ __attribute__((always_inline)) inline double hsum(__m256d v) {
   return _mm_cvtsd_f64(_mm_add_sd(s, _mm_unpackhi_pd(s, s)));
 }
 
-// Indices of a row's next four neighbours; in the tail (left < 4) the last
-// one is repeated and `keep` zeroes the extra lanes.
-__attribute__((always_inline)) inline void tail_indices(const std::uint32_t* idx, std::uint32_t k, std::uint32_t left,
-                                                        std::uint32_t q[4], __m256d& keep) {
-  for (std::uint32_t j = 0; j < 4; ++j) q[j] = idx[k + (j < left ? j : left - 1)];
-  const __m256d lane = _mm256_set_pd(3.0, 2.0, 1.0, 0.0);
-  keep = _mm256_cmp_pd(lane, _mm256_set1_pd(static_cast<double>(left)), _CMP_LT_OQ);
+// Calls group(q, keep, masked) for a row's neighbours idx[k0..k1) four at a
+// time; in the tail (1-3 left) the last index is repeated and `keep` zeroes
+// the extra lanes (masked = true).
+template <class Group>
+__attribute__((always_inline)) inline void for_each_group(const std::uint32_t* idx, std::uint32_t k,
+                                                          std::uint32_t k1, Group& group) {
+  const __m256d all = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
+  for (; k + 8 <= k1; k += 8) {
+    group(idx + k, all, false);
+    group(idx + k + 4, all, false);
+  }
+  for (; k + 4 <= k1; k += 4) group(idx + k, all, false);
+  if (k < k1) {
+    const std::uint32_t left = k1 - k;
+    std::uint32_t q[4];
+    for (std::uint32_t j = 0; j < 4; ++j) q[j] = idx[k + (j < left ? j : left - 1)];
+    const __m256d lane = _mm256_set_pd(3.0, 2.0, 1.0, 0.0);
+    group(q, _mm256_cmp_pd(lane, _mm256_set1_pd(static_cast<double>(left)), _CMP_LT_OQ), true);
+  }
 }
 
 // Uniform: every blob has the width of b.uniform_beta and the records' fourth
@@ -125,7 +137,6 @@ void density_rows_impl(std::size_t r0, std::size_t r1, const std::uint32_t* off,
     const __m256d xp = _mm256_set1_pd(rec[4 * p]), yp = _mm256_set1_pd(rec[4 * p + 1]),
                   zp = _mm256_set1_pd(rec[4 * p + 2]);
     __m256d ar = _mm256_setzero_pd(), ax = ar, ay = ar, az = ar;
-    const __m256d all = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
     // One group of four neighbours q[0..3]; `keep` masks unused lanes (tail only).
     auto group = [&](const std::uint32_t q[4], __m256d keep, bool masked) __attribute__((always_inline)) {
       __m256d qx, qy, qz, bq, mq;
@@ -155,19 +166,7 @@ void density_rows_impl(std::size_t r0, std::size_t r1, const std::uint32_t* off,
       ay = _mm256_fmadd_pd(c, dy, ay);
       az = _mm256_fmadd_pd(c, dz, az);
     };
-    const std::uint32_t e = off[p + 1];
-    std::uint32_t k = off[p];
-    for (; k + 8 <= e; k += 8) {
-      group(idx + k, all, false);
-      group(idx + k + 4, all, false);
-    }
-    for (; k + 4 <= e; k += 4) group(idx + k, all, false);
-    if (k < e) {
-      std::uint32_t q[4];
-      __m256d keep;
-      tail_indices(idx, k, e - k, q, keep);
-      group(q, keep, true);
-    }
+    for_each_group(idx, off[p], off[p + 1], group);
     rho[p] = b.mc[p] + hsum(ar);  // self term: w_pp = mc_p
     gx[p] = hsum(ax);
     gy[p] = hsum(ay);
@@ -205,20 +204,7 @@ void gather_rows_impl(std::size_t r0, std::size_t r1, const std::uint32_t* off, 
       ws = _mm256_add_pd(ws, w);
       w2 = _mm256_fmadd_pd(w, d2, w2);
     };
-    const std::uint32_t e = off[r + 1];
-    std::uint32_t k = off[r];
-    const __m256d all = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
-    for (; k + 8 <= e; k += 8) {
-      group(idx + k, all, false);
-      group(idx + k + 4, all, false);
-    }
-    for (; k + 4 <= e; k += 4) group(idx + k, all, false);
-    if (k < e) {
-      std::uint32_t q[4];
-      __m256d keep;
-      tail_indices(idx, k, e - k, q, keep);
-      group(q, keep, true);
-    }
+    for_each_group(idx, off[r], off[r + 1], group);
     // mc_r is common to the row; self term: w_rr = a_r mc_r, zero displacement.
     const double mr = b.mc[r];
     sx[r] = mr * hsum(ax);
