@@ -247,7 +247,7 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
         counts[p] = count;
       } else if (count != counts[p]) {
         mismatch = true;
-      } else {
+      } else if (count > 0) {  // an empty list has no storage: memcpy must not see its null pointer
         std::memcpy(dst + offsets_[p], sc.row.data(), count * sizeof(std::uint32_t));
       }
     };
@@ -344,7 +344,8 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
         // (their rows are the longest: kept for the second).
         if (pass == 2) {
           const Scratch& from = scratch[own_thread[pu]];
-          std::memcpy(dst + offsets_[pu], from.own_rows.data() + own_pos[pu], counts[pu] * sizeof(std::uint32_t));
+          if (counts[pu] > 0)
+            std::memcpy(dst + offsets_[pu], from.own_rows.data() + own_pos[pu], counts[pu] * sizeof(std::uint32_t));
           continue;
         }
         const Vec3 xp(sx[k], sy[k], sz[k]);  // canonical: what the grid stores
