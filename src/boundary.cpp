@@ -53,6 +53,14 @@ void ProjectionOptions::validate(bool require_reservoir_domain) const {
           reservoir_thickness, "must be finite and > 0 when boundary.dirichlet_mode = reservoir");
   require(reservoir_sublayers >= 0 && reservoir_sublayers <= 1000, "boundary.reservoir_sublayers",
           reservoir_sublayers, "must be in [0, 1000] (0: about one particle spacing per sublayer)");
+  require(reservoir_control == ReservoirControl::Quiet || reservoir_control == ReservoirControl::Exact,
+          "boundary.reservoir_control", static_cast<double>(static_cast<int>(reservoir_control)),
+          "must be quiet or exact");
+  require(std::isfinite(reservoir_tolerance) && reservoir_tolerance >= 0.5 && reservoir_tolerance <= 1e6,
+          "boundary.reservoir_tolerance", reservoir_tolerance,
+          "must be in [0.5, 1e6] (particles; below 0.5 a correction could round to none)");
+  require(reservoir_candidates >= 1 && reservoir_candidates <= 1000, "boundary.reservoir_candidates",
+          reservoir_candidates, "must be in [1, 1000] (candidate points per target particle)");
   require(reservoir_volume_samples >= 10000, "boundary.reservoir_volume_samples", reservoir_volume_samples,
           "must be >= 10000");
   require(!absorb_exterior, "boundary.absorb_exterior", "true",
@@ -329,7 +337,10 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
     }
 
     if (c.kind == PatchKind::Dirichlet && reservoir_mode) {
-      project_reservoir(i, sublayer_members[i], particles, t_new, rng, call, to_remove);
+      if (options_.reservoir_control == ReservoirControl::Quiet)
+        project_reservoir_quiet(i, sublayer_members[i], particles, t_new, call, to_remove);
+      else
+        project_reservoir(i, sublayer_members[i], particles, t_new, rng, call, to_remove);
     } else if (c.kind == PatchKind::Dirichlet) {
       // Sec. 4.2 after (34): insert floor((m - m_pre)/m_p) particles when the
       // cell is short, delete floor((m_pre - m)/m_p) random ones when it is over.

@@ -149,6 +149,15 @@ ReservoirProfile reservoir_profile_from_string(const std::string& s) {
   return ReservoirProfile::Uniform;
 }
 
+std::string to_string(ReservoirControl m) { return m == ReservoirControl::Quiet ? "quiet" : "exact"; }
+
+ReservoirControl reservoir_control_from_string(const std::string& s) {
+  if (s == "quiet") return ReservoirControl::Quiet;
+  if (s == "exact") return ReservoirControl::Exact;
+  require(false, "boundary.reservoir_control", s, "must be one of quiet, exact");
+  return ReservoirControl::Quiet;
+}
+
 std::string to_string(BlobMassMethod method) {
   switch (method) {
     case BlobMassMethod::ClosedForm: return "closed_form";

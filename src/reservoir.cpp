@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <numbers>
 #include <queue>
 #include <stdexcept>
 #include <string>
@@ -12,6 +13,9 @@
 #include <vector>
 
 #include "boundary_internal.hpp"
+#include "cell_grid.hpp"
+#include "otfp/images.hpp"
+#include "otfp/neighbor_list.hpp"
 #include "otfp/boundary.hpp"
 
 namespace otfp {
@@ -32,6 +36,83 @@ constexpr long kMaxTriesPerInsert = 10'000'000;
 // A closed-form sublayer volume is used only if it agrees with the Monte
 // Carlo estimate within this many standard errors.
 constexpr double kVolumeAgreementSigmas = 4.0;
+// Quiet control: the sublayer next to the band's back wall is corrected only
+// when its deficit exceeds this fraction of its target (see project_reservoir_quiet).
+constexpr double kBackTolerance = 0.05;
+// Quiet control: at least this many candidate points per sublayer.
+constexpr std::size_t kMinCandidates = 64;
+// Kernel tolerance of the placement density (a ranking, not the functional).
+constexpr double kPlacementKernelTolerance = 1e-8;
+
+// The blob density of the particles at arbitrary points, with first-order
+// images across the given walls (the density the functional sees, up to
+// images of images): the quiet reservoir puts particles where it is lowest
+// and takes them where it is highest. Widths are the particles' own.
+class PlacementDensity {
+ public:
+  // The blobs are the particles and their images across `walls`, chosen as
+  // the functional chooses them (WallImages, up to images of images at edges
+  // and corners), so that a settled state of the functional reads as one here.
+  PlacementDensity(const ParticleSet& particles, const std::vector<MirrorWallPtr>& walls) {
+    const int dim = particles.dim();
+    double s_max = 0.0;
+    for (double s : particles.widths()) s_max = std::max(s_max, s);
+    radius_ = cutoff_radius(s_max > 0.0 ? s_max : 1.0, kPlacementKernelTolerance);
+    if (particles.empty()) return;
+    std::vector<Vec3> blobs = particles.positions();
+    std::vector<double> width = particles.widths(), mass = particles.masses();
+    if (!walls.empty()) {
+      WallImages images(walls);
+      images.select(particles.positions(), std::vector<double>(particles.size(), radius_));
+      std::vector<Vec3> y;
+      images.positions(particles.positions(), y);
+      for (std::size_t i = 0; i < y.size(); ++i) {
+        const std::uint32_t q = images.sources()[i];
+        blobs.push_back(y[i]);
+        width.push_back(particles.widths()[q]);
+        mass.push_back(particles.masses()[q]);
+      }
+    }
+    grid_.build(blobs, radius_, Periodicity::none(dim), 1);
+    // Each blob's factors in the grid's cell order, next to its sorted coordinates.
+    const auto& items = grid_.items();
+    beta_.resize(items.size());
+    pre_.resize(items.size());
+    for (std::size_t k = 0; k < items.size(); ++k) {
+      const double sq = width[items[k]];
+      beta_[k] = 1.0 / (sq * sq);
+      pre_[k] = mass[items[k]] * std::pow(beta_[k] / std::numbers::pi, 0.5 * dim);
+    }
+  }
+  double radius() const { return radius_; }
+  // The blob density (29) at y, images included.
+  double at(const Vec3& y) const {
+    if (pre_.empty()) return 0.0;
+    double rho = 0.0;
+    const double r2 = radius_ * radius_;
+    const double* sx = grid_.sorted_x().data();
+    const double* sy = grid_.sorted_y().data();
+    const double* sz = grid_.sorted_z().data();
+    grid_.for_each_cell(y, [&](std::uint32_t b, std::uint32_t e, const Vec3&) {
+      for (std::uint32_t k = b; k < e; ++k) {
+        const double dx = y[0] - sx[k], dy = y[1] - sy[k], dz = y[2] - sz[k];
+        const double d2 = dx * dx + dy * dy + dz * dz;
+        if (d2 < r2) rho += pre_[k] * std::exp(-beta_[k] * d2);
+      }
+    });
+    return rho;
+  }
+  // m (beta/pi)^(d/2) exp(-beta r^2), beta = 1/s^2 (29).
+  static double kernel(const Vec3& y, const Vec3& x, double s, double m, int dim) {
+    const double beta = 1.0 / (s * s);
+    return m * std::pow(beta / std::numbers::pi, 0.5 * dim) * std::exp(-beta * (y - x).squaredNorm());
+  }
+
+ private:
+  double radius_ = 0.0;
+  CellGrid grid_;
+  std::vector<double> beta_, pre_;  // per blob, in grid_ order
+};
 
 }  // namespace
 
@@ -216,6 +297,37 @@ void BoundaryProjection::build_reservoir(std::size_t i) {
       r.mirror_volume = mmc;
     r.mirror_mass.assign(K, 0.0);
   }
+  if (options_.reservoir_control == ReservoirControl::Quiet) {
+    // Fixed candidate points of each sublayer, reservoir_candidates per
+    // particle of its largest target (2 g with the odd profile), at least
+    // kMinCandidates: the quiet control places particles only there, so that
+    // no random number is drawn while running.
+    const double factor = options_.reservoir_profile == ReservoirProfile::Odd ? 2.0 : 1.0;
+    std::vector<std::size_t> want(K);
+    std::size_t total_want = 0;
+    for (std::size_t j = 0; j < K; ++j) {
+      const double x = r.quadrature[j].empty() ? 0.0 : r.volume[j] * mean_of(c.data, r.quadrature[j], 0.0) / particle_mass_;
+      const double n = std::isfinite(x) ? std::ceil(factor * std::max(x, 0.0) * options_.reservoir_candidates) : 0.0;
+      want[j] = static_cast<std::size_t>(std::clamp(n, static_cast<double>(kMinCandidates), 1e8));
+      total_want += want[j];
+    }
+    r.candidates.assign(K, {});
+    Rng crng(kReservoirSeed + 0x5143ULL + static_cast<std::uint64_t>(c.patch));
+    std::size_t placed = 0;
+    const long max_tries = kMaxTriesPerInsert * static_cast<long>(std::min<std::size_t>(total_want, 1000));
+    for (long tries = 0; placed < total_want && tries < max_tries; ++tries) {
+      const Vec3 x = uniform_in(r.box, d, crng);
+      const int j = sublayer_of(band_depth(x), sublayers);
+      if (j < 0) continue;
+      auto& pool = r.candidates[static_cast<std::size_t>(j)];
+      if (pool.size() >= want[static_cast<std::size_t>(j)]) continue;
+      pool.push_back(x);
+      ++placed;
+    }
+    for (std::size_t j = 0; j < K; ++j)
+      require(!r.candidates[j].empty(), "boundary.reservoir_control", "quiet",
+              "found no candidate point in sublayer " + std::to_string(j) + " of patch " + name);
+  }
 }
 
 const BoundaryProjection::Reservoir& BoundaryProjection::reservoir_of(std::size_t condition_index) const {
@@ -262,6 +374,19 @@ const std::string& BoundaryProjection::reservoir_volume_rule(std::size_t conditi
   return reservoir_of(condition_index).volume_rule;
 }
 
+double BoundaryProjection::reservoir_profile_count(std::size_t i, std::size_t j, double t) const {
+  const Reservoir& r = reservoirs_[i];
+  double x_j = reservoir_target_count(i, static_cast<int>(j), t);
+  if (r.wall && !r.mirror_volume.empty()) {
+    // Odd parity about g: density 2 g - rho_in, clamped to [0, 2 g].
+    const double rho_in = r.mirror_mass[j] / r.mirror_volume[j];
+    const double g_mass = x_j * particle_mass_;  // g |sublayer j|
+    const double want = std::clamp(2.0 * g_mass - rho_in * r.volume[j], 0.0, 2.0 * g_mass);
+    x_j = want / particle_mass_;
+  }
+  return x_j;
+}
+
 void BoundaryProjection::project_reservoir(std::size_t i, std::vector<std::vector<std::size_t>>& sublayer_members,
                                            ParticleSet& particles, double t_new, Rng& rng, PatchLedger& call,
                                            std::vector<std::size_t>& to_remove) {
@@ -275,14 +400,7 @@ void BoundaryProjection::project_reservoir(std::size_t i, std::vector<std::vecto
   for (std::size_t j = 0; j < K; ++j) {
     // Error diffusion: T_j = floor(X_j + r_j), r_j <- X_j + r_j - T_j, so
     // the mean of T_j over calls is X_j. A negative target acts as zero.
-    double x_j = reservoir_target_count(i, static_cast<int>(j), t_new);
-    if (r.wall && !r.mirror_volume.empty()) {
-      // Odd parity about g: density 2 g - rho_in, clamped to [0, 2 g].
-      const double rho_in = r.mirror_mass[j] / r.mirror_volume[j];
-      const double g_mass = x_j * mp;  // g |sublayer j|
-      const double want = std::clamp(2.0 * g_mass - rho_in * r.volume[j], 0.0, 2.0 * g_mass);
-      x_j = want / mp;
-    }
+    const double x_j = reservoir_profile_count(i, j, t_new);
     const double v = x_j + r.carry[j];
     long target = 0;
     require_particle_room(v, particles.size(), max_particles_, patch_label(i, t_new));
@@ -344,4 +462,160 @@ void BoundaryProjection::project_reservoir(std::size_t i, std::vector<std::vecto
 // candidate gets a lower bound of its distance (|sd|, exact when its closest
 // boundary point is on A_l; otherwise also |x - c| - rho for the sphere
 // (c, rho) around the points on A_l), and exact distances are evaluated in
+// Quiet control (docs/boundaries.md, "Quiet reservoir"). What the face must
+// see is the blob density (29): with the odd profile, rho(c) + rho(R c) = 2 g
+// for every band point c and its mirror image R c inside Omega (the smoothed
+// form of "u - g is odd across the face": the kernel is even, so a field odd
+// about g has a smoothed density odd about g). Counts of particles are the
+// wrong measure: a settled band layers parallel to its walls, a sublayer half
+// a spacing thick catches one layer or the gap between two, and holding such
+// counts fights the dynamics every step (the exact control's churn). So the
+// deficit of sublayer j is measured on fixed probe points,
+//   D_j = |sublayer j| / m_p x mean over probes of (T(c) - rho(c)),
+//   T(c) = clamp(2 g - rho(R c), 0, 2 g) (odd) or g (uniform),
+// rho with the image blobs the functional has, and sublayer j is corrected
+// only when |D_j| > reservoir_tolerance, by round(D_j) particles: removed
+// where rho - T is largest, put at the candidate points where T - rho is
+// largest, the densities updated after each particle. The sublayer next to
+// the back wall (K >= 2) is corrected only when it is off by more than 5% of
+// its target: its density is what the wall makes of it (at the sphere's
+// curved back wall the settled state reads 1-2% off, and holding it to one
+// particle cost 11 insertions and removals per step in a steady state), and
+// its neighbour, which is held, feeds it. Deterministic: no random numbers.
+void BoundaryProjection::project_reservoir_quiet(std::size_t i,
+                                                 std::vector<std::vector<std::size_t>>& sublayer_members,
+                                                 ParticleSet& particles, double t_new, PatchLedger& call,
+                                                 std::vector<std::size_t>& to_remove) {
+  PatchLedger& led = ledger_[i];
+  const Reservoir& r = reservoirs_[i];
+  const PatchCondition& c = conditions_[i];
+  const auto K = static_cast<std::size_t>(r.sublayers);
+  // The back sublayer (K >= 2) is held only within kBackTolerance of its
+  // target: enough to fill it at the start and refill it when the band runs
+  // low, loose enough to leave the wall's own 1-2% alone.
+  auto tolerance = [&](std::size_t j, double x_j) {
+    return K >= 2 && j + 1 == K ? std::max(options_.reservoir_tolerance, kBackTolerance * std::abs(x_j))
+                                : options_.reservoir_tolerance;
+  };
+  const std::size_t held = K;
+  const int dim = domain_->dim();
+  const bool odd = options_.reservoir_profile == ReservoirProfile::Odd && r.wall != nullptr;
+  const PlacementDensity density(particles, walls_);
+  const double r2 = density.radius() * density.radius();
+  auto target = [&](const Vec3& y) {
+    const double g = c.data(y, t_new);
+    if (!odd) return g;
+    return std::clamp(2.0 * g - density.at(r.wall->reflect(y, nullptr)), 0.0, 2.0 * std::max(g, 0.0));
+  };
+
+  // Each held sublayer's deficit on its probes (the first candidates: they
+  // are uniform in the sublayer).
+  std::vector<long> change(K, 0);
+  long total_insert = 0;
+  for (std::size_t j = 0; j < held; ++j) {
+    const std::vector<Vec3>& cand = r.candidates[j];
+    const std::size_t probes = std::max<std::size_t>(
+        std::min(cand.size(), kMinCandidates), cand.size() / static_cast<std::size_t>(options_.reservoir_candidates));
+    double sum_t = 0.0, sum_d = 0.0;
+    for (std::size_t k = 0; k < probes; ++k) {
+      const double t = target(cand[k]);
+      sum_t += t;
+      sum_d += t - density.at(cand[k]);
+    }
+    const double scale = r.volume[j] / (static_cast<double>(probes) * particle_mass_);
+    const double x_j = sum_t * scale, d_j = sum_d * scale;
+    require(std::isfinite(d_j), "reservoir deficit (patch " + std::to_string(c.patch) + ")", d_j,
+            "must be finite (check g)");
+    require_particle_room(std::max(x_j, 0.0), particles.size(), max_particles_, patch_label(i, t_new));
+    if (std::abs(d_j) <= tolerance(j, x_j)) continue;
+    change[j] = std::max(std::lround(d_j), -static_cast<long>(sublayer_members[j].size()));
+    total_insert += std::max(change[j], 0L);
+  }
+  require_particle_room(static_cast<double>(total_insert), particles.size(), max_particles_, patch_label(i, t_new));
+
+  // Removals: the particles of the sublayer with the largest excess rho - T first.
+  for (std::size_t j = 0; j < held; ++j) {
+    if (change[j] >= 0) continue;
+    const std::vector<std::size_t>& in_j = sublayer_members[j];
+    std::vector<double> excess(in_j.size());
+    for (std::size_t k = 0; k < in_j.size(); ++k) {
+      const Vec3& y = particles.positions()[in_j[k]];
+      excess[k] = density.at(y) - target(y);
+    }
+    for (long n = 0; n < -change[j]; ++n) {
+      const auto k = static_cast<std::size_t>(std::max_element(excess.begin(), excess.end()) - excess.begin());
+      const std::size_t p = in_j[k];
+      const Vec3 xp = particles.positions()[p];
+      const double sp = particles.widths()[p], mp = particles.masses()[p];
+      excess[k] = -std::numeric_limits<double>::infinity();
+      for (std::size_t l = 0; l < in_j.size(); ++l)
+        if (std::isfinite(excess[l]) && (particles.positions()[in_j[l]] - xp).squaredNorm() < r2)
+          excess[l] -= PlacementDensity::kernel(particles.positions()[in_j[l]], xp, sp, mp, dim);
+      to_remove.push_back(p);
+      ++led.removed;
+      ++call.removed;
+      led.mass_removed += mp;
+      call.mass_removed += mp;
+    }
+  }
+  if (total_insert == 0) return;
+
+  // Insertions: the candidates of the sublayers being filled ranked by their
+  // deficit T - rho, lowered as particles are placed (a particle in one
+  // sublayer also lowers the deficit at the candidates of its neighbours).
+  // A candidate is used at most once per call.
+  std::vector<Vec3> cand;
+  std::vector<std::size_t> layer_of;
+  for (std::size_t j = 0; j < held; ++j) {
+    if (change[j] <= 0) continue;
+    cand.insert(cand.end(), r.candidates[j].begin(), r.candidates[j].end());
+    layer_of.insert(layer_of.end(), r.candidates[j].size(), j);
+  }
+  std::vector<double> deficit(cand.size());
+  for (std::size_t k = 0; k < cand.size(); ++k) deficit[k] = target(cand[k]) - density.at(cand[k]);
+  CellGrid grid;
+  grid.build(cand, density.radius(), Periodicity::none(dim), 1);
+  // Per sublayer, a max-heap of (deficit, candidate) with lazy updates:
+  // deficits only fall as particles are placed, so a popped entry whose
+  // deficit has fallen goes back in with its new value.
+  using Entry = std::pair<double, std::size_t>;
+  std::vector<std::priority_queue<Entry>> heap(K);
+  for (std::size_t k = 0; k < cand.size(); ++k) heap[layer_of[k]].emplace(deficit[k], k);
+  std::vector<char> used(cand.size(), 0);
+  particles.reserve(particles.size() + static_cast<std::size_t>(total_insert));
+  const double mp = particle_mass_;
+  for (std::size_t j = 0; j < held; ++j) {
+    for (long n = 0; n < change[j]; ++n) {
+      std::size_t k = cand.size();
+      while (!heap[j].empty()) {
+        const Entry e = heap[j].top();
+        heap[j].pop();
+        if (used[e.second]) continue;
+        if (deficit[e.second] < e.first) {
+          heap[j].emplace(deficit[e.second], e.second);
+          continue;
+        }
+        k = e.second;
+        break;
+      }
+      if (k == cand.size())
+        throw std::runtime_error("reservoir of patch '" + domain_->patch_name(c.patch) + "': sublayer " +
+                                 std::to_string(j) + " needs more particles than its " +
+                                 std::to_string(r.candidates[j].size()) +
+                                 " candidate points (raise reservoir_candidates)");
+      used[k] = 1;
+      const Vec3 y = cand[k];
+      particles.add(y, width_s_, mp, t_new);
+      grid.for_each_candidate(y, [&](std::uint32_t l) {
+        if (!used[l] && (cand[l] - y).squaredNorm() < r2)
+          deficit[l] -= PlacementDensity::kernel(cand[l], y, width_s_, mp, dim);
+      });
+      ++led.inserted;
+      ++call.inserted;
+      led.mass_inserted += mp;
+      call.mass_inserted += mp;
+    }
+  }
+}
+
 }  // namespace otfp

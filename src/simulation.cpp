@@ -232,6 +232,8 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
       throw SimulationSetupError(SimulationSetupError::Stage::Walls, e.what());
     }
   }
+  // The quiet reservoir places particles by the density the functional sees.
+  if (!walls_.empty()) projection_->set_mirror_walls(walls_);
   try {
     if (o.stepper == StepperKind::Implicit) {
       implicit_ = std::make_unique<ImplicitStepper>(dim, o.implicit, barrier, periodicity);
@@ -248,6 +250,28 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
 Simulation::~Simulation() = default;
 
 int Simulation::mirrored_walls() const { return static_cast<int>(walls_.size()); }
+
+double Simulation::blob_mass(const BlobMassOptions& options) const {
+  double mass = blob_mass_in_domain(*domain_, particles_, options);
+  if (walls_.empty() || particles_.empty()) return mass;
+  // Images within the measure's own cut-off of a wall (beyond it a blob has
+  // no mass on the other side at the measure's tolerance).
+  const double depth = std::sqrt(std::log(1.0 / options.cutoff_tolerance));
+  std::vector<double> reach(particles_.size());
+  for (std::size_t p = 0; p < particles_.size(); ++p) reach[p] = depth * particles_.widths()[p];
+  WallImages images(walls_);
+  images.select(particles_.positions(), reach);
+  if (images.size() == 0) return mass;
+  std::vector<Vec3> y;
+  images.positions(particles_.positions(), y);
+  ParticleSet blobs(domain_->dim());
+  blobs.reserve(y.size());
+  for (std::size_t i = 0; i < y.size(); ++i) {
+    const std::uint32_t q = images.sources()[i];
+    blobs.add(y[i], particles_.widths()[q], particles_.masses()[q], 0.0);
+  }
+  return mass + blob_mass_in_domain(*domain_, blobs, options);
+}
 
 int Simulation::condition_of(int patch) const {
   return patch >= 0 && static_cast<std::size_t>(patch) < condition_of_patch_.size()

@@ -388,6 +388,7 @@ ProjectionOptions reservoir_options(DomainPtr ext, double w, int sublayers) {
   o.reservoir_domain = std::move(ext);
   o.reservoir_thickness = w;
   o.reservoir_sublayers = sublayers;
+  o.reservoir_control = ReservoirControl::Exact;  // these tests are of the exact counts (tests/test_reservoir.cpp: quiet)
   return o;
 }
 

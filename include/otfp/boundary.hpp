@@ -75,6 +75,9 @@ struct ProjectionOptions {
   int reservoir_sublayers = 0;                            // Reservoir: sublayers K per patch (0: ~one spacing each)
   int reservoir_volume_samples = 1000000;                 // Reservoir: Monte Carlo points per patch, sublayer volumes
   ReservoirProfile reservoir_profile = ReservoirProfile::Uniform;  // Reservoir: g, or odd parity about g
+  ReservoirControl reservoir_control = ReservoirControl::Quiet;    // Reservoir: tolerance band + placement, or exact counts
+  double reservoir_tolerance = 1.0;    // Reservoir, Quiet: correct sublayer j when its deficit exceeds this (particles)
+  int reservoir_candidates = 4;        // Reservoir, Quiet: fixed candidate points per target particle of a sublayer
   bool absorb_exterior = false;                           // Layer: remove particles outside Omega on Dirichlet patches
   // Throws InvalidArgument naming the field, the value and the rule. The
   // reservoir fields are checked only with dirichlet_mode = Reservoir;
@@ -109,7 +112,18 @@ class BoundaryProjection {
   //  1. Particles whose Omega patch is a Dirichlet patch and that lie outside
   //     the reservoir domain (sd_ext > 0) are removed and counted as absorbed
   //     (particles outside Omega at no-flux or Neumann patches are left alone).
-  //  2. Each sublayer is set to exactly T_j particles: surplus ones are deleted
+  //  2. Quiet control (the default): the deficit of sublayer j is measured
+  //     on the blob density, D_j = |sublayer j| / m_p x mean over fixed probe
+  //     points c of (T(c) - rho(c)), T = g (uniform) or 2 g - rho(R c)
+  //     (odd, R c the mirror point inside Omega, clamped to [0, 2 g]), rho
+  //     with the image blobs of set_mirror_walls(). Sublayer j is left alone
+  //     while |D_j| <= reservoir_tolerance; otherwise round(D_j) particles
+  //     leave where rho - T is largest or are put, one at a time, at the
+  //     candidate point where T - rho is largest (reservoir_candidates fixed
+  //     points per target particle). The sublayer next to the back wall
+  //     (K >= 2) is held only within 5% of its target. No random numbers
+  //     are drawn, and a settled state is left unchanged.
+  //  2'. Exact control: each sublayer is set to exactly T_j particles: surplus ones are deleted
   //     uniformly at random, missing ones inserted uniformly in the sublayer.
   //     T_j = floor(X_j + r_j), X_j = (integral of g over sublayer j) / m_p,
   //     and the carry r_j <- X_j + r_j - T_j in [0, 1) (error diffusion), so
@@ -130,6 +144,9 @@ class BoundaryProjection {
   // particles may then be partly projected: otfp::Simulation puts the step back).
   PatchLedger apply(ParticleSet& particles, double t, double dt, Rng& rng);
   void set_max_particles(std::int64_t max_particles) { max_particles_ = max_particles; }
+  // Walls across which the blob density has image blobs (otfp::Simulation
+  // passes its mirrored walls): the quiet reservoir's placement counts them.
+  void set_mirror_walls(std::vector<MirrorWallPtr> walls) { walls_ = std::move(walls); }
   std::int64_t max_particles() const { return max_particles_; }
 
   const std::vector<PatchLedger>& ledger() const { return ledger_; }  // indexed by position in conditions()
@@ -172,7 +189,8 @@ class BoundaryProjection {
     Aabb box;                                   // sampling box around the band
     std::vector<double> volume;                 // |sublayer j|
     std::vector<std::vector<Vec3>> quadrature;  // uniform points of sublayer j (one for constant g)
-    std::vector<double> carry;                  // r_j in [0, 1), in particles
+    std::vector<double> carry;                  // r_j in [0, 1), in particles (Exact control)
+    std::vector<std::vector<Vec3>> candidates;  // Quiet control: fixed placement candidates of sublayer j
     std::string volume_rule;                    // "exterior_shell" | "slab" | "monte_carlo"
     // Odd profile: the wall of the patch, the volume of each sublayer's
     // mirror image inside Omega and the particle mass found there.
@@ -188,6 +206,12 @@ class BoundaryProjection {
   void project_reservoir(std::size_t i, std::vector<std::vector<std::size_t>>& sublayer_members,
                          ParticleSet& particles, double t_new, Rng& rng, PatchLedger& call,
                          std::vector<std::size_t>& to_remove);
+  // The same with the quiet control (ProjectionOptions::reservoir_control).
+  void project_reservoir_quiet(std::size_t i, std::vector<std::vector<std::size_t>>& sublayer_members,
+                               ParticleSet& particles, double t_new, PatchLedger& call,
+                               std::vector<std::size_t>& to_remove);
+  // Real target count of sublayer j at t (odd profile applied).
+  double reservoir_profile_count(std::size_t i, std::size_t j, double t) const;
   // Removes particles not yet taken, nearest A_l first, while condition i owes outflow.
   void remove_nearest(std::size_t i, const ParticleSet& particles, const std::vector<double>& sd_of,
                       const std::vector<int>& patch_of, std::vector<char>& taken, double threshold,
@@ -204,7 +228,9 @@ class BoundaryProjection {
   // quadrature_samples points, uniform in B_l^int for the cell integral or
   // projected onto A_l from uniform points of B_l for surface integrals.
   std::vector<std::vector<Vec3>> quadrature_points_;
-  std::vector<Reservoir> reservoirs_;  // per condition; sublayers = 0 unless Dirichlet in Reservoir mode
+  std::vector<Reservoir> reservoirs_;
+  std::vector<MirrorWallPtr> walls_;  // set_mirror_walls
+  // per condition; sublayers = 0 unless Dirichlet in Reservoir mode
   // NearestParticles: fixed-seed points on A_l per Neumann condition, and a
   // sphere (centre, radius) around them for the distance lower bound.
   std::vector<std::vector<Vec3>> surface_points_;

@@ -118,6 +118,16 @@ enum class ReservoirProfile {
 std::string to_string(ReservoirProfile m);
 ReservoirProfile reservoir_profile_from_string(const std::string& s);  // "uniform" | "odd"
 
+// How the reservoir holds its sublayers at their counts (ProjectionOptions::reservoir_control).
+enum class ReservoirControl {
+  Quiet,  // a sublayer is corrected only when its count leaves a tolerance band around its target;
+          // particles go where the blob density is lowest and leave where it is highest (no random numbers)
+  Exact   // every sublayer set to exactly its count every step, surplus deleted and missing
+          // particles inserted uniformly at random (issue 10's rule: churns in a steady state)
+};
+std::string to_string(ReservoirControl m);
+ReservoirControl reservoir_control_from_string(const std::string& s);  // "quiet" | "exact"
+
 // How the Dirichlet target mass of B_l^int is computed (docs/method_notes.md#dirichlet-target).
 enum class DirichletTarget {
   CellIntegral,  // integral of g over the cell B_l^int itself (default)

@@ -25,6 +25,7 @@
 #include "otfp/diagnostics.hpp"
 #include "otfp/geometry.hpp"
 #include "otfp/ledger.hpp"
+#include "otfp/mass_measure.hpp"
 #include "otfp/particles.hpp"
 #include "otfp/stepper.hpp"
 #include "otfp/time_step_control.hpp"
@@ -187,6 +188,14 @@ class Simulation {
   // What the barrier holds the particles in, and the walls with image blobs.
   std::string barrier_domain_description() const { return barrier_description_; }
   int mirrored_walls() const;
+  // M_rho: the blob density the functional sees integrated over Omega, the
+  // image blobs at the mirrored walls included (blob_mass_in_domain() of the
+  // particles plus that of their images): a particle next to a no-flux wall
+  // counts whole, as its image folds its tail back, and a Dirichlet face is
+  // crossed smoothly. Layers of particles that settle parallel to a face move
+  // the count of centres (43) by a fraction of a layer; this measure does not
+  // see where the layers fall (docs/boundaries.md, "Quiet reservoir").
+  double blob_mass(const BlobMassOptions& options = {}) const;
   ImplicitStepper* implicit_stepper() { return implicit_.get(); }
   ExplicitStepper* explicit_stepper() { return explicit_.get(); }
 

@@ -451,6 +451,12 @@ const std::vector<Field>& fields() {
             .with(interval('[', 0, 1000, ']', "must be in [0, 1000] (0: about one spacing per sublayer)")),
         key("treatment.reservoir_profile", &TreatmentSection::reservoir_profile)
             .one_of(names({ReservoirProfile::Uniform, ReservoirProfile::Odd})),
+        key("treatment.reservoir_control", &TreatmentSection::reservoir_control)
+            .one_of(names({ReservoirControl::Quiet, ReservoirControl::Exact})),
+        key("treatment.reservoir_tolerance", &TreatmentSection::reservoir_tolerance)
+            .with(interval('[', 0.5, 1e6, ']', "must be in [0.5, 1000000] (particles)")),
+        key("treatment.reservoir_candidates", &TreatmentSection::reservoir_candidates)
+            .with(interval('[', 1, 1000, ']', "must be in [1, 1000] (candidate points per target particle)")),
         key("treatment.neumann_outflow", &TreatmentSection::neumann_outflow).one_of({"layer", "nearest"}),
         key("treatment.stranded", &TreatmentSection::stranded).one_of({"keep", "absorb"}),
         key("diagnostics.center", &DiagnosticsSection::center),

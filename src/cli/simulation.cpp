@@ -570,6 +570,9 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     po.reservoir_thickness = d.reservoir_width;
     po.reservoir_sublayers = d.reservoir_sublayers;
     po.reservoir_profile = tr.reservoir_profile == "odd" ? ReservoirProfile::Odd : ReservoirProfile::Uniform;
+    po.reservoir_control = reservoir_control_from_string(tr.reservoir_control);
+    po.reservoir_tolerance = tr.reservoir_tolerance;
+    po.reservoir_candidates = static_cast<int>(tr.reservoir_candidates);
   }
   so.fill_reservoir_at_start = true;
   const SolverSection& s = c.solver;
@@ -864,7 +867,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
     r.l1_polar_inertia = l1.polar_inertia_rectangle;
     r.mass_ratio = r.mass_inside / d.M_inf;
     if (d.J_inf) r.polar_inertia_ratio = r.polar_inertia / *d.J_inf;
-    r.mass_blob = blob_mass_in_domain(*domain_, particles, blob_options);
+    r.mass_blob = sim.blob_mass(blob_options);
     r.mass_blob_ratio = r.mass_blob / d.M_inf;
     // Analytic references: measured, reference, error (scaled) per row.
     auto& rv = r.reference_values;

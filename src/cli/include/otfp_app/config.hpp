@@ -148,6 +148,9 @@ struct TreatmentSection {
   double reservoir_width = 1.0;             // band thickness in units of the kernel cut-off r_c of the blobs
   std::int64_t reservoir_sublayers = 0;     // 0: round(2 w / dr), half a spacing per sublayer
   std::string reservoir_profile = "odd";    // uniform (g) | odd (2 g - interior mirror density)
+  std::string reservoir_control = "quiet";  // quiet (tolerance band, density-ranked placement) | exact (issue 10)
+  double reservoir_tolerance = 1.0;         // quiet: correct a sublayer when |N - X| > max(1, this sqrt(X))
+  std::int64_t reservoir_candidates = 4;    // quiet: fixed candidate points per target particle
   std::string neumann_outflow = "nearest";  // layer (B_l only) | nearest (beyond B_l when it runs empty)
   std::string stranded = "keep";            // keep | absorb: particles beyond a Dirichlet face (layer treatment)
 };
