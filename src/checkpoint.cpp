@@ -1,0 +1,303 @@
+// Simulation::save_checkpoint and load_checkpoint (the rest of Simulation is
+// in simulation.cpp).
+#include "otfp/simulation.hpp"
+
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <system_error>
+#include <type_traits>
+#include <unistd.h>
+
+#include "otfp/implicit_stepper.hpp"
+
+namespace otfp {
+
+// ------------------------------------------------------------------ checkpoints
+//
+// Binary, native byte order (a checkpoint is for the machine that wrote it):
+// "OTFPCKP1", then the fields below in order, then an FNV-1a 64 checksum of
+// everything before it.
+
+namespace {
+
+constexpr char kMagic[8] = {'O', 'T', 'F', 'P', 'C', 'K', 'P', '1'};
+
+class Writer {
+ public:
+  template <class T>
+  void put(const T& v) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    const char* p = reinterpret_cast<const char*>(&v);
+    bytes_.append(p, sizeof(T));
+  }
+  void put_vec(const Vec3& v) {
+    for (int k = 0; k < 3; ++k) put(v[k]);
+  }
+  void put_string(const std::string& s) {
+    put(static_cast<std::uint64_t>(s.size()));
+    bytes_ += s;
+  }
+  std::string& bytes() { return bytes_; }
+
+ private:
+  std::string bytes_;
+};
+
+class Reader {
+ public:
+  Reader(const std::string& bytes, std::string file) : bytes_(bytes), file_(std::move(file)) {}
+  template <class T>
+  T get() {
+    static_assert(std::is_trivially_copyable_v<T>);
+    if (pos_ + sizeof(T) > bytes_.size()) fail("truncated");
+    T v;
+    std::memcpy(&v, bytes_.data() + pos_, sizeof(T));
+    pos_ += sizeof(T);
+    return v;
+  }
+  Vec3 get_vec() {
+    Vec3 v;
+    for (int k = 0; k < 3; ++k) v[k] = get<double>();
+    return v;
+  }
+  std::string get_string() {
+    const auto n = get<std::uint64_t>();
+    if (n > bytes_.size() - pos_) fail("truncated");
+    std::string s = bytes_.substr(pos_, n);
+    pos_ += n;
+    return s;
+  }
+  std::uint64_t count(std::uint64_t max_count, const char* what) {
+    const auto n = get<std::uint64_t>();
+    if (n > max_count) fail(std::string(what) + " count " + std::to_string(n) + " is implausible");
+    return n;
+  }
+  [[noreturn]] void fail(const std::string& why) const {
+    throw InvalidArgument("checkpoint " + file_ + ": " + why);
+  }
+  bool at_end() const { return pos_ == bytes_.size(); }
+
+ private:
+  const std::string& bytes_;
+  std::string file_;
+  std::size_t pos_ = 0;
+};
+
+std::uint64_t fnv1a(const char* p, std::size_t n) {
+  std::uint64_t h = 14695981039346656037ull;
+  for (std::size_t i = 0; i < n; ++i) {
+    h ^= static_cast<unsigned char>(p[i]);
+    h *= 1099511628211ull;
+  }
+  return h;
+}
+
+void put_patch_ledger(Writer& w, const PatchLedger& l) {
+  w.put(static_cast<std::int64_t>(l.inserted));
+  w.put(static_cast<std::int64_t>(l.removed));
+  w.put(l.mass_inserted);
+  w.put(l.mass_removed);
+  w.put(static_cast<std::int64_t>(l.absorbed));
+  w.put(l.mass_absorbed);
+  w.put(l.flux_integral);
+  w.put(l.carry);
+  w.put(l.deficit);
+}
+
+PatchLedger get_patch_ledger(Reader& r) {
+  PatchLedger l;
+  l.inserted = static_cast<long>(r.get<std::int64_t>());
+  l.removed = static_cast<long>(r.get<std::int64_t>());
+  l.mass_inserted = r.get<double>();
+  l.mass_removed = r.get<double>();
+  l.absorbed = static_cast<long>(r.get<std::int64_t>());
+  l.mass_absorbed = r.get<double>();
+  l.flux_integral = r.get<double>();
+  l.carry = r.get<double>();
+  l.deficit = r.get<double>();
+  return l;
+}
+
+}  // namespace
+
+void Simulation::save_checkpoint(const std::filesystem::path& path, const std::string& extra) const {
+  require_started("save_checkpoint");
+  Writer w;
+  w.bytes().append(kMagic, sizeof(kMagic));
+  w.put(static_cast<std::int32_t>(domain_->dim()));
+  w.put(static_cast<std::int32_t>(domain_->num_patches()));
+  w.put(static_cast<std::uint64_t>(boundary_.size()));
+  w.put(static_cast<std::int32_t>(options_.stepper == StepperKind::Implicit));
+  w.put(time_);
+  w.put(step_);
+  w.put(dt_next_);
+  // Particles, in their current order (the order is part of the state).
+  w.put(static_cast<std::uint64_t>(particles_.size()));
+  w.put(particles_.next_id());
+  for (std::size_t p = 0; p < particles_.size(); ++p) {
+    w.put(particles_.ids()[p]);
+    w.put_vec(particles_.positions()[p]);
+    w.put(particles_.widths()[p]);
+    w.put(particles_.masses()[p]);
+    w.put(particles_.birth_times()[p]);
+  }
+  const Rng::State rs = rng_.state();
+  for (std::uint64_t v : rs.s) w.put(v);
+  w.put(static_cast<std::int32_t>(rs.has_spare));
+  w.put(rs.spare);
+  w.put(ledger_);
+  w.put(totals_);
+  const BoundaryProjection::State ps = projection_->state();
+  w.put(static_cast<std::uint64_t>(ps.ledger.size()));
+  for (const PatchLedger& l : ps.ledger) put_patch_ledger(w, l);
+  w.put(static_cast<std::uint64_t>(ps.reservoir_carry.size()));
+  for (const auto& c : ps.reservoir_carry) {
+    w.put(static_cast<std::uint64_t>(c.size()));
+    for (double v : c) w.put(v);
+  }
+  ImplicitStepper::HistoryState hs;
+  if (implicit_) hs = implicit_->history_state();
+  w.put(hs.dt1);
+  w.put(hs.dt2);
+  w.put(static_cast<std::uint64_t>(hs.entries.size()));
+  for (const auto& e : hs.entries) {
+    w.put(e.id);
+    w.put_vec(e.d1);
+    w.put_vec(e.d2);
+    w.put(e.ds1);
+    w.put(e.ds2);
+    w.put(static_cast<std::int32_t>(e.count));
+  }
+  w.put(initial_.inserted);
+  w.put(initial_.removed);
+  w.put_string(extra);
+  w.put(fnv1a(w.bytes().data(), w.bytes().size()));
+
+  // Atomic: a temporary file in the same directory, flushed, then renamed.
+  const std::filesystem::path tmp = path.string() + ".tmp" + std::to_string(::getpid());
+  {
+    std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
+    if (!f) throw std::runtime_error("cannot write checkpoint " + tmp.string());
+    f.write(w.bytes().data(), static_cast<std::streamsize>(w.bytes().size()));
+    f.flush();
+    if (!f) {
+      std::error_code ec;
+      std::filesystem::remove(tmp, ec);
+      throw std::runtime_error("cannot write checkpoint " + tmp.string() + " (disk full?)");
+    }
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) {
+    std::filesystem::remove(tmp, ec);
+    throw std::runtime_error("cannot rename checkpoint to " + path.string());
+  }
+}
+
+void Simulation::load_checkpoint(const std::filesystem::path& path, std::string* extra) {
+  std::string bytes;
+  {
+    std::ifstream f(path, std::ios::binary);
+    if (!f) throw InvalidArgument("checkpoint " + path.string() + ": cannot read");
+    std::ostringstream ss;
+    ss << f.rdbuf();
+    bytes = ss.str();
+  }
+  Reader r(bytes, path.string());
+  if (bytes.size() < sizeof(kMagic) + 8 || std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0)
+    r.fail("not an otfp checkpoint (bad magic)");
+  std::uint64_t stored;
+  std::memcpy(&stored, bytes.data() + bytes.size() - 8, 8);
+  if (fnv1a(bytes.data(), bytes.size() - 8) != stored) r.fail("checksum mismatch (damaged file)");
+  const std::string body = bytes.substr(0, bytes.size() - 8);
+  Reader b(body, path.string());
+  for (std::size_t i = 0; i < sizeof(kMagic); ++i) b.get<char>();
+  if (b.get<std::int32_t>() != domain_->dim()) b.fail("written for another dimension");
+  if (b.get<std::int32_t>() != domain_->num_patches()) b.fail("written for a domain with other patches");
+  if (b.get<std::uint64_t>() != boundary_.size()) b.fail("written with other boundary data");
+  if ((b.get<std::int32_t>() != 0) != (options_.stepper == StepperKind::Implicit)) b.fail("written with another stepper");
+  const double t = b.get<double>();
+  const auto step = b.get<std::int64_t>();
+  const double dt_next = b.get<double>();
+  const std::uint64_t n = b.count(body.size() / 64, "particle");
+  const auto next_id = b.get<ParticleId>();
+  ParticleSet particles(domain_->dim());
+  particles.reserve(n);
+  try {
+    for (std::uint64_t i = 0; i < n; ++i) {
+      const auto id = b.get<ParticleId>();
+      const Vec3 x = b.get_vec();
+      const double s = b.get<double>(), m = b.get<double>(), birth = b.get<double>();
+      particles.add_with_id(id, x, s, m, birth);
+    }
+    particles.set_next_id(next_id);
+  } catch (const InvalidArgument& e) {
+    b.fail(e.what());
+  }
+  Rng::State rs;
+  for (std::uint64_t& v : rs.s) v = b.get<std::uint64_t>();
+  rs.has_spare = b.get<std::int32_t>() != 0;
+  rs.spare = b.get<double>();
+  const auto ledger = b.get<SimulationLedger>();
+  const auto totals = b.get<SimulationTotals>();
+  BoundaryProjection::State ps;
+  ps.ledger.resize(b.count(1u << 20, "condition"));
+  for (PatchLedger& l : ps.ledger) l = get_patch_ledger(b);
+  ps.reservoir_carry.resize(b.count(1u << 20, "reservoir"));
+  for (auto& c : ps.reservoir_carry) {
+    c.resize(b.count(1u << 20, "sublayer"));
+    for (double& v : c) v = b.get<double>();
+  }
+  ImplicitStepper::HistoryState hs;
+  hs.dt1 = b.get<double>();
+  hs.dt2 = b.get<double>();
+  hs.entries.resize(b.count(body.size() / 64, "history"));
+  for (auto& e : hs.entries) {
+    e.id = b.get<ParticleId>();
+    e.d1 = b.get_vec();
+    e.d2 = b.get_vec();
+    e.ds1 = b.get<double>();
+    e.ds2 = b.get<double>();
+    e.count = b.get<std::int32_t>();
+  }
+  const auto ins0 = b.get<std::int64_t>(), rem0 = b.get<std::int64_t>();
+  std::string user = b.get_string();
+  if (!b.at_end()) b.fail("trailing bytes");
+  if (!std::isfinite(t)) b.fail("non-finite time");
+
+  // Everything read: apply (each restore validates before changing anything).
+  try {
+    Rng(0).set_state(rs);
+    const BoundaryProjection::State old = projection_->state();
+    projection_->restore(ps);
+    if (implicit_) {
+      try {
+        implicit_->restore_history(hs);
+      } catch (...) {
+        projection_->restore(old);
+        throw;
+      }
+    }
+    rng_.set_state(rs);
+  } catch (const InvalidArgument& e) {
+    b.fail(e.what());
+  }
+  particles_ = std::move(particles);
+  time_ = t;
+  step_ = step;
+  dt_next_ = dt_next;
+  ledger_ = ledger;
+  totals_ = totals;
+  initial_ = SimulationStep{};
+  initial_.inserted = ins0;
+  initial_.removed = rem0;
+  initial_.diffusion.accepted = true;
+  started_ = true;
+  if (extra) *extra = std::move(user);
+}
+
+}  // namespace otfp
