@@ -71,9 +71,14 @@ class Reader {
     pos_ += n;
     return s;
   }
-  std::uint64_t count(std::uint64_t max_count, const char* what) {
+  // A count of records of `record_bytes` each that must follow: at most what
+  // the bytes left can hold (a damaged count cannot allocate more than the
+  // file's size).
+  std::uint64_t count(std::size_t record_bytes, const char* what) {
     const auto n = get<std::uint64_t>();
-    if (n > max_count) fail(std::string(what) + " count " + std::to_string(n) + " is implausible");
+    if (n > (bytes_.size() - pos_) / record_bytes)
+      fail(std::string(what) + " count " + std::to_string(n) + " exceeds what the file's remaining " +
+           std::to_string(bytes_.size() - pos_) + " bytes can hold (truncated or damaged)");
     return n;
   }
   [[noreturn]] void fail(const std::string& why) const {
@@ -223,7 +228,9 @@ void Simulation::load_checkpoint(const std::filesystem::path& path, std::string*
   const double t = b.get<double>();
   const auto step = b.get<std::int64_t>();
   const double dt_next = b.get<double>();
-  const std::uint64_t n = b.count(body.size() / 64, "particle");
+  // A particle record: id, position, width, mass, birth time.
+  constexpr std::size_t kParticleRecord = sizeof(ParticleId) + 3 * sizeof(double) + 3 * sizeof(double);
+  const std::uint64_t n = b.count(kParticleRecord, "particle");
   const auto next_id = b.get<ParticleId>();
   ParticleSet particles(domain_->dim());
   particles.reserve(n);
@@ -245,17 +252,19 @@ void Simulation::load_checkpoint(const std::filesystem::path& path, std::string*
   const auto ledger = b.get<SimulationLedger>();
   const auto totals = b.get<SimulationTotals>();
   BoundaryProjection::State ps;
-  ps.ledger.resize(b.count(1u << 20, "condition"));
+  ps.ledger.resize(b.count(6 * sizeof(double) + 3 * sizeof(std::int64_t), "condition"));
   for (PatchLedger& l : ps.ledger) l = get_patch_ledger(b);
-  ps.reservoir_carry.resize(b.count(1u << 20, "reservoir"));
+  ps.reservoir_carry.resize(b.count(sizeof(std::uint64_t), "reservoir"));
   for (auto& c : ps.reservoir_carry) {
-    c.resize(b.count(1u << 20, "sublayer"));
+    c.resize(b.count(sizeof(double), "sublayer"));
     for (double& v : c) v = b.get<double>();
   }
   ImplicitStepper::HistoryState hs;
   hs.dt1 = b.get<double>();
   hs.dt2 = b.get<double>();
-  hs.entries.resize(b.count(body.size() / 64, "history"));
+  // A history record: id, d1, d2, ds1, ds2, count.
+  constexpr std::size_t kHistoryRecord = sizeof(ParticleId) + 8 * sizeof(double) + sizeof(std::int32_t);
+  hs.entries.resize(b.count(kHistoryRecord, "history"));
   for (auto& e : hs.entries) {
     e.id = b.get<ParticleId>();
     e.d1 = b.get_vec();
