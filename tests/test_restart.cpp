@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <map>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -198,15 +200,74 @@ TEST(Restart, ResumeRefusesWhatItCannotContinue) {
     EXPECT_EQ(err.rfind(b.starts, 0), 0u) << err;
     EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
   }
-  // A damaged checkpoint: the run fails (exit 1) naming the file.
-  {
-    std::string bytes = read_text(dir / "checkpoint.bin");
-    bytes[bytes.size() / 2] ^= 0x01;
-    std::ofstream f(dir / "checkpoint.bin", std::ios::binary | std::ios::trunc);
-    f << bytes;
+  fs::remove_all(dir);
+}
+
+namespace {
+
+// Every file of a directory and its bytes.
+std::map<std::string, std::string> files_of(const fs::path& dir) {
+  std::map<std::string, std::string> out;
+  for (const fs::directory_entry& e : fs::directory_iterator(dir)) out[e.path().filename().string()] = read_text(e.path());
+  return out;
+}
+
+void rewrite(const fs::path& file, const std::string& bytes) {
+  std::ofstream f(file, std::ios::binary | std::ios::trunc);
+  f << bytes;
+}
+
+}  // namespace
+
+// A resume that cannot continue the run is refused before anything is
+// written: the directory stays byte for byte as it was (no summary.json
+// rewritten as "failed", no particles_failed.vtp), exit code 2, one line
+// naming the file and what is wrong with it.
+TEST(Restart, RefusedResumeLeavesTheRunUntouched) {
+  const fs::path dir = fresh_dir("resume_untouched");
+  ASSERT_EQ(run_config(small_sphere(3, false), dir).exit_code, 0);
+  const std::map<std::string, std::string> pristine = files_of(dir);
+  const std::string ckpt = pristine.at("checkpoint.bin"), series = pristine.at("series.csv");
+  struct Case {
+    std::string what;
+    std::function<void()> damage;
+    std::string t_end;
+    std::vector<std::string> mentions;
+  };
+  const std::string later = "run.t_end=" + std::to_string(6 * 0.00390625);
+  const std::vector<Case> cases = {
+      {"truncated checkpoint", [&] { rewrite(dir / "checkpoint.bin", ckpt.substr(0, ckpt.size() - 100)); }, later,
+       {"checkpoint.bin", "checksum"}},
+      {"flipped bit", [&] { std::string b = ckpt; b[b.size() / 2] ^= 0x01; rewrite(dir / "checkpoint.bin", b); },
+       later, {"checkpoint.bin", "checksum"}},
+      {"t_end before the checkpoint", [] {}, "run.t_end=0.005", {"run.t_end = 0.005", "checkpoint.bin", "t = "}},
+      {"garbage row in series.csv",
+       [&] { rewrite(dir / "series.csv", series.substr(0, series.find('\n') + 1) + "garbage\n" +
+                                          series.substr(series.find('\n') + 1)); },
+       later, {"series.csv", "line 2"}},
+      {"garbage row at the end of series.csv", [&] { rewrite(dir / "series.csv", series + "1,2\n"); }, later,
+       {"series.csv", "line " + std::to_string(std::count(series.begin(), series.end(), '\n') + 1)}},
+      {"rows missing in series.csv", [&] { rewrite(dir / "series.csv", series.substr(0, series.rfind('\n', series.size() - 2) + 1)); },
+       later, {"series.csv", "before the checkpoint's step"}},
+      {"missing series.csv", [&] { fs::remove(dir / "series.csv"); }, later, {"series.csv"}},
+      {"missing timing.csv", [&] { fs::remove(dir / "timing.csv"); }, later, {"timing.csv"}},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.what);
+    for (const auto& [name, bytes] : pristine) rewrite(dir / name, bytes);
+    c.damage();
+    const std::map<std::string, std::string> before = files_of(dir);
+    std::string err;
+    EXPECT_EQ(cli({"run", "--resume", dir.string(), "--quiet", "--set", c.t_end}, err), 2) << err;
+    EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+    EXPECT_EQ(err.rfind("otfp: error: ", 0), 0u) << err;
+    for (const std::string& m : c.mentions) EXPECT_NE(err.find(m), std::string::npos) << m << " in " << err;
+    EXPECT_TRUE(files_of(dir) == before) << "the run's directory changed";
   }
-  EXPECT_EQ(cli({"run", "--resume", dir.string(), "--quiet", "--set", "run.t_end=0.02"}, err), 1);
-  EXPECT_NE(err.find("checksum"), std::string::npos) << err;
+  // Put back, the run continues.
+  for (const auto& [name, bytes] : pristine) rewrite(dir / name, bytes);
+  std::string err;
+  EXPECT_EQ(cli({"run", "--resume", dir.string(), "--quiet", "--set", later}, err), 0) << err;
   fs::remove_all(dir);
 }
 

@@ -413,6 +413,8 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
     return 0;
   }
   if (r.exit_code == kExitInterrupted) return error(err, r.error, kExitInterrupted);
+  if (r.exit_code == kExitRefused)
+    return error(err, "--resume = \"" + escaped(out_dir) + "\": " + r.error + " (nothing in it was changed)", kUsage);
   if (r.exit_code != 0)
     return error(err,
                  r.rows ? fmt::format("{} (the files in {} are complete up to step {}, t = {})", r.error, out_dir,

@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <charconv>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -48,6 +49,7 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 constexpr double kPi = std::numbers::pi;
+const std::string kTimingHeader = "step,t,wall_seconds,step_seconds,solver_seconds,list_seconds\n";
 
 // A failure while stepping: exit code 1, files kept.
 class RunError : public std::runtime_error {
@@ -170,16 +172,54 @@ L1Norms l1_from_state(const nlohmann::json& j) {
   return l;
 }
 
-// The lines of a CSV file whose first field (the step) is <= k, header kept.
-std::string csv_up_to_step(const std::filesystem::path& file, std::int64_t k) {
-  std::ifstream f(file);
-  if (!f) throw RunError("cannot read " + file.string() + " to resume");
+// A resume that cannot continue the run: refused before any file is
+// touched (exit code 2; RunResult::exit_code kExitRefused).
+class ResumeRefused : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// The lines of a run's CSV file (series.csv, timing.csv) up to step k, header
+// kept, for a resume to continue. Checked first, so that a resume never
+// rewrites a file it cannot read: the header must be the one this
+// configuration writes, every row must hold as many fields as the header and
+// start with the step, one more than the row before (from step 0), and the
+// rows must reach step k (rows after it, of a run killed between
+// checkpoints, are dropped).
+std::string csv_up_to_step(const std::filesystem::path& file, const std::string& header, std::int64_t k) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(file, ec))
+    throw ResumeRefused(fmt::format("{}: {}", file.string(),
+                                    std::filesystem::exists(file, ec) ? "not a regular file" : "missing"));
+  std::ifstream f(file, std::ios::binary);
+  if (!f) throw ResumeRefused(file.string() + ": cannot read");
+  const auto fields = [](const std::string& line) { return std::count(line.begin(), line.end(), ',') + 1; };
   std::string line, text;
-  bool header = true;
+  std::int64_t line_no = 0, last_step = -1;
   while (std::getline(f, line)) {
-    if (header || (!line.empty() && std::stoll(line.substr(0, line.find(','))) <= k)) text += line + "\n";
-    header = false;
+    ++line_no;
+    if (line_no == 1) {
+      if (line + "\n" != header)
+        throw ResumeRefused(fmt::format("{}: line 1 is not the header this configuration writes", file.string()));
+      text += line + "\n";
+      continue;
+    }
+    const std::string first = line.substr(0, line.find(','));
+    std::int64_t step = -1;
+    const auto [end, err] = std::from_chars(first.data(), first.data() + first.size(), step);
+    if (err != std::errc() || end != first.data() + first.size() || fields(line) != fields(header) ||
+        step != last_step + 1)
+      throw ResumeRefused(fmt::format("{}: line {} is not the row of step {} ({} fields expected, starting with the "
+                                      "step)",
+                                      file.string(), line_no, last_step + 1, fields(header)));
+    last_step = step;
+    if (step <= k) text += line + "\n";
   }
+  if (f.bad()) throw ResumeRefused(file.string() + ": cannot read");
+  if (line_no == 0) throw ResumeRefused(file.string() + ": empty (no header)");
+  if (last_step < k)
+    throw ResumeRefused(fmt::format("{}: its rows end at step {}, before the checkpoint's step {} (rows missing)",
+                                    file.string(), last_step, k));
   return text;
 }
 
@@ -1261,7 +1301,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       if (write) {
         std::filesystem::create_directories(out);
         series_file = AppendFile(out / "series.csv", header);
-        timing_file = AppendFile(out / "timing.csv", "step,t,wall_seconds,step_seconds,solver_seconds,list_seconds\n");
+        timing_file = AppendFile(out / "timing.csv", kTimingHeader);
         write_file_atomic(out / "config.toml", to_toml(c));
         arm_kill_summary(StepRecord{}, false);
         write_domain_surface(out);
@@ -1273,52 +1313,80 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       sim.start(std::move(fill), rng, 0.0);
       emit(diagnostics(0, 0.0, nullptr, sim.initial_step().inserted, sim.initial_step().removed), false);
     } else {
-      std::string extra;
-      sim.load_checkpoint(checkpoint_file, &extra);
-      const nlohmann::json js = nlohmann::json::parse(extra);
-      l1 = l1_from_state(js.at("l1"));
-      prev_measures = measures_from_state(js.at("prev_measures"));
-      S0 = js.at("S0").get<double>();
-      A0 = js.at("A0").get<double>();
-      mode_log = js.at("mode_log").get<std::vector<std::pair<double, double>>>();
-      mode_fit_open = js.at("mode_fit_open").get<bool>();
-      ref_stats.clear();
-      for (const auto& e : js.at("ref_stats")) ref_stats.push_back(ErrorStats::from_state(e));
-      blob_stats = ErrorStats::from_state(js.at("blob_stats"));
-      snapshots = js.at("snapshots").get<std::vector<std::pair<double, std::string>>>();
-      last_snapshot = js.at("last_snapshot").get<std::int64_t>();
-      n0 = js.at("n0").get<std::int64_t>();
-      M0 = js.at("M0").get<double>();
-      last.step = js.at("last_step").get<std::int64_t>();
-      last.t = js.at("last_t").get<double>();
-      last.mass_ratio = js.at("last_mass_ratio").get<double>();
-      last.n_particles = js.at("last_n").get<std::int64_t>();
-      result.rows = true;  // the rows up to the checkpoint
-      k_done = sim.step_count();
-      if (!(js.at("k_origin").get<std::int64_t>() == 0 && js.at("dt_run").get<double>() == d.dt)) {
-        // A new t_end changed dt = t_end / n_steps: the rest of the run gets
-        // its own equal steps from the checkpoint on.
-        const double dt0 = c.run.dt ? *c.run.dt : c.run.dt_factor * d.dt_explicit;
-        t_origin = sim.time();
-        k_origin = k_done;
-        const std::int64_t m = std::max<std::int64_t>(
-            1, static_cast<std::int64_t>(std::ceil((c.run.t_end - t_origin) / dt0 * (1.0 - 1e-12))));
-        dt_run = (c.run.t_end - t_origin) / static_cast<double>(m);
-        n_total = k_done + m;
-      }
-      step_dt = dt_run;
-      const bool done = c.run.dt_mode == "adaptive"
-                            ? sim.time() >= c.run.t_end || (c.run.max_steps > 0 && k_done >= c.run.max_steps)
-                            : k_done >= (c.run.max_steps > 0 ? std::min(n_total, c.run.max_steps) : n_total);
-      if (done) {
-        result.status = "completed";
-        result.nothing_to_do = true;
-        result.last = last;
+      // Everything the resume needs is read and checked before any file is
+      // touched: a refused resume leaves the run's directory as it was.
+      std::string series_text, timing_text;
+      try {
+        std::string extra;
+        try {
+          sim.load_checkpoint(checkpoint_file, &extra);
+        } catch (const std::exception& e) {
+          throw ResumeRefused(e.what());
+        }
+        nlohmann::json js;
+        try {
+          js = nlohmann::json::parse(extra);
+          l1 = l1_from_state(js.at("l1"));
+          prev_measures = measures_from_state(js.at("prev_measures"));
+          S0 = js.at("S0").get<double>();
+          A0 = js.at("A0").get<double>();
+          mode_log = js.at("mode_log").get<std::vector<std::pair<double, double>>>();
+          mode_fit_open = js.at("mode_fit_open").get<bool>();
+          ref_stats.clear();
+          for (const auto& e : js.at("ref_stats")) ref_stats.push_back(ErrorStats::from_state(e));
+          blob_stats = ErrorStats::from_state(js.at("blob_stats"));
+          snapshots = js.at("snapshots").get<std::vector<std::pair<double, std::string>>>();
+          last_snapshot = js.at("last_snapshot").get<std::int64_t>();
+          n0 = js.at("n0").get<std::int64_t>();
+          M0 = js.at("M0").get<double>();
+          last.step = js.at("last_step").get<std::int64_t>();
+          last.t = js.at("last_t").get<double>();
+          last.mass_ratio = js.at("last_mass_ratio").get<double>();
+          last.n_particles = js.at("last_n").get<std::int64_t>();
+          js.at("k_origin").get<std::int64_t>();
+          js.at("dt_run").get<double>();
+        } catch (const nlohmann::json::exception& e) {
+          throw ResumeRefused(fmt::format("checkpoint {}: not written by otfp run (its driver state: {})",
+                                          checkpoint_file.string(), e.what()));
+        }
+        k_done = sim.step_count();
+        if (!(c.run.t_end >= sim.time()))
+          throw ResumeRefused(fmt::format("run.t_end = {}: must be >= the time t = {} of {} (step {})", c.run.t_end,
+                                          sim.time(), checkpoint_file.string(), k_done));
+        if (!(js.at("k_origin").get<std::int64_t>() == 0 && js.at("dt_run").get<double>() == d.dt)) {
+          // A new t_end changed dt = t_end / n_steps: the rest of the run gets
+          // its own equal steps from the checkpoint on.
+          const double dt0 = c.run.dt ? *c.run.dt : c.run.dt_factor * d.dt_explicit;
+          t_origin = sim.time();
+          k_origin = k_done;
+          const std::int64_t m = std::max<std::int64_t>(
+              1, static_cast<std::int64_t>(std::ceil((c.run.t_end - t_origin) / dt0 * (1.0 - 1e-12))));
+          dt_run = (c.run.t_end - t_origin) / static_cast<double>(m);
+          n_total = k_done + m;
+        }
+        step_dt = dt_run;
+        const bool done = c.run.dt_mode == "adaptive"
+                              ? sim.time() >= c.run.t_end || (c.run.max_steps > 0 && k_done >= c.run.max_steps)
+                              : sim.time() >= c.run.t_end ||
+                                    k_done >= (c.run.max_steps > 0 ? std::min(n_total, c.run.max_steps) : n_total);
+        if (done) {
+          result.status = "completed";
+          result.nothing_to_do = true;
+          result.last = last;
+          return result;
+        }
+        // The rows after the checkpoint (a run killed between checkpoints) are taken again.
+        series_text = csv_up_to_step(out / "series.csv", header, k_done);
+        timing_text = csv_up_to_step(out / "timing.csv", kTimingHeader, k_done);
+      } catch (const ResumeRefused& e) {
+        result.status = "refused";
+        result.error = e.what();
+        result.exit_code = kExitRefused;
         return result;
       }
-      // The rows after the checkpoint (a run killed between checkpoints) are taken again.
-      series_file = AppendFile(out / "series.csv", csv_up_to_step(out / "series.csv", k_done));
-      timing_file = AppendFile(out / "timing.csv", csv_up_to_step(out / "timing.csv", k_done));
+      result.rows = true;  // the rows up to the checkpoint
+      series_file = AppendFile(out / "series.csv", series_text);
+      timing_file = AppendFile(out / "timing.csv", timing_text);
       arm_kill_summary(last, true);
       write_file_atomic(out / "summary.json", summary("running", "", last).dump(2) + "\n");
     }
