@@ -2,6 +2,11 @@
 // in simulation.cpp).
 #include "otfp/simulation.hpp"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+
+#include <charconv>
+#include <cerrno>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -19,12 +24,14 @@ namespace otfp {
 // ------------------------------------------------------------------ checkpoints
 //
 // Binary, native byte order (a checkpoint is for the machine that wrote it):
-// "OTFPCKP1", then the fields below in order, then an FNV-1a 64 checksum of
-// everything before it.
+// "OTFPCKP2", then the fields below in order, then an FNV-1a 64 checksum of
+// everything before it. Format 2 added the setup fingerprint and put the
+// caller's data before the state (checkpoint_extra() reads it alone).
 
 namespace {
 
-constexpr char kMagic[8] = {'O', 'T', 'F', 'P', 'C', 'K', 'P', '1'};
+constexpr char kMagic[8] = {'O', 'T', 'F', 'P', 'C', 'K', 'P', '2'};
+constexpr char kMagicV1[8] = {'O', 'T', 'F', 'P', 'C', 'K', 'P', '1'};
 
 class Writer {
  public:
@@ -127,7 +134,160 @@ PatchLedger get_patch_ledger(Reader& r) {
   return l;
 }
 
+std::string shortest(double v) {
+  char buf[64];
+  const auto r = std::to_chars(buf, buf + sizeof(buf), v);
+  return std::string(buf, r.ptr);
+}
+
+// What a checkpoint may only be loaded into: the domain, the boundary data and
+// the options that give the state its meaning (widths, masses, the physics,
+// the treatment of the boundaries, the stepper), one "name = value" line
+// each. Options a caller may change between the save and the load (the
+// resource limit, the adaptive controller, solver tolerances, the seed, which
+// only start() uses) are not part of it.
+std::string setup_fingerprint(const Domain& domain, const std::vector<ConstantBoundaryData>& boundary,
+                              const SimulationOptions& o) {
+  std::string out;
+  auto line = [&out](const std::string& name, const std::string& value) { out += name + " = " + value + "\n"; };
+  // Appended piece by piece: GCC 12's -Wrestrict misfires on a chain of + here.
+  auto vec = [](const Vec3& v) {
+    std::string t = "[";
+    for (int k = 0; k < 3; ++k) {
+      t += shortest(v[k]);
+      t += k < 2 ? ", " : "]";
+    }
+    return t;
+  };
+  line("domain.dim", std::to_string(domain.dim()));
+  line("domain.patches", std::to_string(domain.num_patches()));
+  line("domain.periodic", domain.is_periodic() ? "true" : "false");
+  if (domain.is_periodic()) line("domain.period", vec(domain.period()));
+  line("domain.volume", shortest(domain.volume()));
+  const Aabb box = domain.bounding_box();
+  line("domain.bounding_box", vec(box.lo) + " - " + vec(box.hi));
+  for (int p = 0; p < domain.num_patches(); ++p)
+    line("domain.patch[" + std::to_string(p) + "]", domain.patch_name(p) + ", area " + shortest(domain.patch_area(p)));
+  for (std::size_t i = 0; i < boundary.size(); ++i) {
+    const ConstantBoundaryData& b = boundary[i];
+    line("boundary[" + std::to_string(i) + "]", "patch " + std::to_string(b.patch) + ", " + to_string(b.kind) + " " +
+                                                    shortest(b.value) + " over [" + shortest(b.t_start) + ", " +
+                                                    shortest(b.t_end) + ")");
+  }
+  line("particle_mass", shortest(o.particle_mass));
+  line("width_s", shortest(o.width_s));
+  line("bounded", o.bounded ? "true" : "false");
+  line("barrier_stiffness", shortest(o.barrier_stiffness));
+  line("no_flux", to_string(o.no_flux));
+  const ProjectionOptions& po = o.projection;
+  line("projection.layer_b", shortest(po.layer_b));
+  line("projection.dirichlet_target", to_string(po.dirichlet_target));
+  line("projection.neumann_outflow", to_string(po.neumann_outflow));
+  line("projection.dirichlet_mode", to_string(po.dirichlet_mode));
+  line("projection.reservoir_thickness", shortest(po.reservoir_thickness));
+  line("projection.reservoir_sublayers", std::to_string(po.reservoir_sublayers));
+  line("projection.reservoir_profile", to_string(po.reservoir_profile));
+  line("projection.absorb_exterior", po.absorb_exterior ? "true" : "false");
+  line("stepper", to_string(o.stepper));
+  if (o.stepper == StepperKind::Implicit) {
+    line("implicit.kappa", shortest(o.implicit.kappa));
+    line("implicit.rho_ref", shortest(o.implicit.rho_ref));
+    line("implicit.time_scheme", to_string(o.implicit.time_scheme));
+    line("implicit.width_mode", to_string(o.implicit.width_mode));
+  } else {
+    line("explicit_options.scheme", to_string(o.explicit_options.scheme));
+    line("explicit_options.kappa", shortest(o.explicit_options.kappa));
+    line("explicit_options.rho_ref", shortest(o.explicit_options.rho_ref));
+  }
+  line("velocity", vec(o.velocity));
+  line("source_rate", shortest(o.source_rate));
+  return out;
+}
+
+// The first line of `mine` that `theirs` does not hold, as "name = <theirs> in
+// the file, <mine> here" (empty when they agree).
+std::string first_difference(const std::string& theirs, const std::string& mine) {
+  auto lines = [](const std::string& text) {
+    std::vector<std::pair<std::string, std::string>> out;
+    std::istringstream in(text);
+    for (std::string l; std::getline(in, l);) {
+      const std::size_t eq = l.find(" = ");
+      out.emplace_back(l.substr(0, eq), eq == std::string::npos ? "" : l.substr(eq + 3));
+    }
+    return out;
+  };
+  const auto a = lines(theirs), b = lines(mine);
+  for (const auto& [name, value] : b) {
+    std::string other = "(absent)";
+    for (const auto& [n, v] : a)
+      if (n == name) other = v;
+    if (other != value) return name + " = " + other + " in the file, " + value + " here";
+  }
+  for (const auto& [name, value] : a) {
+    bool found = false;
+    for (const auto& [n, v] : b) found = found || n == name;
+    if (!found) return name + " = " + value + " in the file, absent here";
+  }
+  return theirs == mine ? "" : "the setup";
+}
+
+// The bytes of a checkpoint file before its checksum, checked: a regular file
+// (a FIFO or a device such as /dev/zero would block or never end), at most
+// half the machine's memory, the magic of this format and the checksum.
+std::string read_verified(const std::filesystem::path& path) {
+  const std::string name = "checkpoint " + path.string() + ": ";
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK);
+  if (fd < 0) throw InvalidArgument(name + "cannot read (" + std::strerror(errno) + ")");
+  struct stat st {};
+  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+    ::close(fd);
+    throw InvalidArgument(name + (S_ISDIR(st.st_mode) ? "a directory" : "not a regular file") +
+                          " (a checkpoint is a file written by save_checkpoint)");
+  }
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+  const double memory = pages > 0 && page > 0 ? static_cast<double>(pages) * static_cast<double>(page) : 4e9;
+  if (static_cast<double>(st.st_size) > 0.5 * memory) {
+    ::close(fd);
+    throw InvalidArgument(name + std::to_string(st.st_size) + " bytes, more than half this machine's memory");
+  }
+  std::string bytes(static_cast<std::size_t>(st.st_size), '\0');
+  std::size_t got = 0;
+  while (got < bytes.size()) {
+    const ssize_t n = ::read(fd, bytes.data() + got, bytes.size() - got);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      const int e = errno;
+      ::close(fd);
+      throw InvalidArgument(name + (n == 0 ? std::string("shorter than its size (changed while read)")
+                                           : "cannot read (" + std::string(std::strerror(e)) + ")"));
+    }
+    got += static_cast<std::size_t>(n);
+  }
+  ::close(fd);
+  if (bytes.size() >= sizeof(kMagicV1) && std::memcmp(bytes.data(), kMagicV1, sizeof(kMagicV1)) == 0)
+    throw InvalidArgument(name + "written by an older otfp (format 1, without a setup fingerprint): not loadable");
+  if (bytes.size() < sizeof(kMagic) + 8 || std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0)
+    throw InvalidArgument(name + "not an otfp checkpoint (bad magic)");
+  std::uint64_t stored;
+  std::memcpy(&stored, bytes.data() + bytes.size() - 8, 8);
+  if (fnv1a(bytes.data(), bytes.size() - 8) != stored) throw InvalidArgument(name + "checksum mismatch (damaged file)");
+  bytes.resize(bytes.size() - 8);
+  return bytes;
+}
+
 }  // namespace
+
+std::string Simulation::checkpoint_extra(const std::filesystem::path& path) {
+  const std::string body = read_verified(path);
+  Reader b(body, path.string());
+  for (std::size_t i = 0; i < sizeof(kMagic); ++i) b.get<char>();
+  b.get<std::int32_t>();
+  b.get<std::int32_t>();
+  b.get<std::uint64_t>();
+  b.get<std::int32_t>();
+  b.get_string();
+  return b.get_string();
+}
 
 void Simulation::save_checkpoint(const std::filesystem::path& path, const std::string& extra) const {
   require_started("save_checkpoint");
@@ -137,6 +297,8 @@ void Simulation::save_checkpoint(const std::filesystem::path& path, const std::s
   w.put(static_cast<std::int32_t>(domain_->num_patches()));
   w.put(static_cast<std::uint64_t>(boundary_.size()));
   w.put(static_cast<std::int32_t>(options_.stepper == StepperKind::Implicit));
+  w.put_string(setup_fingerprint(*domain_, boundary_, options_));
+  w.put_string(extra);
   w.put(time_);
   w.put(step_);
   w.put(dt_next_);
@@ -179,7 +341,6 @@ void Simulation::save_checkpoint(const std::filesystem::path& path, const std::s
   }
   w.put(initial_.inserted);
   w.put(initial_.removed);
-  w.put_string(extra);
   w.put(fnv1a(w.bytes().data(), w.bytes().size()));
 
   // Atomic: a temporary file in the same directory, flushed, then renamed.
@@ -204,27 +365,16 @@ void Simulation::save_checkpoint(const std::filesystem::path& path, const std::s
 }
 
 void Simulation::load_checkpoint(const std::filesystem::path& path, std::string* extra) {
-  std::string bytes;
-  {
-    std::ifstream f(path, std::ios::binary);
-    if (!f) throw InvalidArgument("checkpoint " + path.string() + ": cannot read");
-    std::ostringstream ss;
-    ss << f.rdbuf();
-    bytes = ss.str();
-  }
-  Reader r(bytes, path.string());
-  if (bytes.size() < sizeof(kMagic) + 8 || std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0)
-    r.fail("not an otfp checkpoint (bad magic)");
-  std::uint64_t stored;
-  std::memcpy(&stored, bytes.data() + bytes.size() - 8, 8);
-  if (fnv1a(bytes.data(), bytes.size() - 8) != stored) r.fail("checksum mismatch (damaged file)");
-  const std::string body = bytes.substr(0, bytes.size() - 8);
+  const std::string body = read_verified(path);
   Reader b(body, path.string());
   for (std::size_t i = 0; i < sizeof(kMagic); ++i) b.get<char>();
   if (b.get<std::int32_t>() != domain_->dim()) b.fail("written for another dimension");
   if (b.get<std::int32_t>() != domain_->num_patches()) b.fail("written for a domain with other patches");
   if (b.get<std::uint64_t>() != boundary_.size()) b.fail("written with other boundary data");
   if ((b.get<std::int32_t>() != 0) != (options_.stepper == StepperKind::Implicit)) b.fail("written with another stepper");
+  const std::string difference = first_difference(b.get_string(), setup_fingerprint(*domain_, boundary_, options_));
+  if (!difference.empty()) b.fail("written by a Simulation of another setup: " + difference);
+  std::string user = b.get_string();
   const double t = b.get<double>();
   const auto step = b.get<std::int64_t>();
   const double dt_next = b.get<double>();
@@ -274,7 +424,6 @@ void Simulation::load_checkpoint(const std::filesystem::path& path, std::string*
     e.count = b.get<std::int32_t>();
   }
   const auto ins0 = b.get<std::int64_t>(), rem0 = b.get<std::int64_t>();
-  std::string user = b.get_string();
   if (!b.at_end()) b.fail("trailing bytes");
   if (!std::isfinite(t)) b.fail("non-finite time");
 

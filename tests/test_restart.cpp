@@ -157,6 +157,35 @@ TEST(Restart, StepZeroCheckpointRoundTrips) {
   }
 }
 
+// The library refuses a checkpoint of another setup (here rho_ref) naming the
+// field, whatever its caller does; options a caller may change (the
+// particle limit) do not matter. checkpoint_extra() reads the caller's data
+// alone.
+TEST(Restart, LibraryRefusesACheckpointOfAnotherSetup) {
+  const ConfiguredRun one(parse_config_file(kExamples / "free_space_heat.toml", {"run.max_particles=5000"}));
+  const ConfiguredRun two(parse_config_file(kExamples / "free_space_heat.toml", {"physics.rho_ref=2"}));
+  const ConfiguredRun three(parse_config_file(kExamples / "free_space_heat.toml", {"run.max_particles=7000"}));
+  const auto a = one.make_simulation();
+  a->advance(one.derived().dt);
+  const fs::path file = fresh_dir("setup_ckpt");
+  a->save_checkpoint(file, "mine");
+  EXPECT_EQ(otfp::Simulation::checkpoint_extra(file), "mine");
+  const auto b = two.make_simulation();
+  try {
+    b->load_checkpoint(file);
+    ADD_FAILURE() << "a checkpoint of rho_ref = 1 loaded into rho_ref = 2";
+  } catch (const otfp::InvalidArgument& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("implicit.rho_ref = 1 in the file, 2 here"), std::string::npos) << msg;
+    EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+  }
+  EXPECT_EQ(b->step_count(), 0) << "state kept";
+  const auto c = three.make_simulation();
+  EXPECT_NO_THROW(c->load_checkpoint(file));
+  EXPECT_EQ(c->step_count(), 1);
+  fs::remove(file);
+}
+
 // An explicit-stepper run's checkpoint resumes through the CLI, and the
 // resumed series equals the run made at once.
 TEST(Restart, ExplicitRunResumes) {
@@ -269,6 +298,47 @@ TEST(Restart, RefusedResumeLeavesTheRunUntouched) {
   std::string err;
   EXPECT_EQ(cli({"run", "--resume", dir.string(), "--quiet", "--set", later}, err), 0) << err;
   fs::remove_all(dir);
+}
+
+// A checkpoint carries the resolved configuration it was written with; a
+// resume whose configuration differs in any key a resume may not change (a
+// foreign checkpoint of the same dimension and patch count, or an edited
+// DIR/config.toml) is refused naming the key, and changes nothing.
+TEST(Restart, ResumeRefusesAnotherConfiguration) {
+  const fs::path a = fresh_dir("fingerprint_a"), b = fresh_dir("fingerprint_b");
+  ASSERT_EQ(run_config({"particles.n_inf=120", "run.max_steps=2"}, a).exit_code, 0);
+  ASSERT_EQ(run_config({"particles.n_inf=150", "run.max_steps=2"}, b).exit_code, 0);
+  const std::map<std::string, std::string> pristine = files_of(b);
+  fs::copy_file(a / "checkpoint.bin", b / "checkpoint.bin", fs::copy_options::overwrite_existing);
+  std::map<std::string, std::string> before = files_of(b);
+  std::string err;
+  EXPECT_EQ(cli({"run", "--resume", b.string(), "--quiet", "--set", "run.max_steps=4"}, err), 2) << err;
+  EXPECT_NE(err.find("particles.n_inf = 150"), std::string::npos) << err;
+  EXPECT_NE(err.find("120"), std::string::npos) << err;
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+  EXPECT_TRUE(files_of(b) == before);
+
+  // kappa edited in DIR/config.toml.
+  for (const auto& [name, bytes] : pristine) rewrite(b / name, bytes);
+  std::string toml = pristine.at("config.toml");
+  const std::size_t at = toml.find("kappa = 1");
+  ASSERT_NE(at, std::string::npos) << toml;
+  rewrite(b / "config.toml", toml.replace(at, 9, "kappa = 2"));
+  before = files_of(b);
+  EXPECT_EQ(cli({"run", "--resume", b.string(), "--quiet", "--set", "run.max_steps=4"}, err), 2) << err;
+  EXPECT_NE(err.find("physics.kappa = 2"), std::string::npos) << err;
+  EXPECT_NE(err.find("config.toml"), std::string::npos) << err;
+  EXPECT_TRUE(files_of(b) == before);
+
+  // Unchanged, with keys a resume may change, it continues.
+  for (const auto& [name, bytes] : pristine) rewrite(b / name, bytes);
+  EXPECT_EQ(cli({"run", "--resume", b.string(), "--quiet", "--set", "run.max_steps=4", "--set", "run.threads=2",
+                 "--set", "run.max_particles=100000"},
+                err),
+            0)
+      << err;
+  fs::remove_all(a);
+  fs::remove_all(b);
 }
 
 // particles.fill = "file": a run starts from another run's final particles

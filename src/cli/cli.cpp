@@ -97,10 +97,6 @@ struct SweepSignals {
   SweepSignals& operator=(const SweepSignals&) = delete;
 };
 
-// The keys a resumed run may change: where it ends and how it writes.
-const char* const kResumeKeys[] = {"run.t_end", "run.max_steps", "run.vtk_interval", "run.checkpoint_interval",
-                                   "run.threads", "run.max_particles"};
-
 // Control characters of user text as escapes (one-line messages).
 std::string escaped(const std::string& s) {
   std::string out;
@@ -354,14 +350,12 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
                      kUsage);
       for (const std::string& set : sets) {
         const std::string key = set.substr(0, set.find('='));
-        bool allowed = false;
-        for (const char* k : kResumeKeys) allowed = allowed || key == k;
-        if (!allowed)
-          return error(err,
-                       "--set " + escaped(set) +
-                           ": cannot change on --resume (only run.t_end, run.max_steps, run.vtk_interval, "
-                           "run.checkpoint_interval, run.threads)",
-                       kUsage);
+        const std::vector<std::string>& keys = resume_keys();
+        if (std::find(keys.begin(), keys.end(), key) == keys.end()) {
+          std::string list;
+          for (const std::string& k : keys) list += (list.empty() ? "" : ", ") + k;
+          return error(err, "--set " + escaped(set) + ": cannot change on --resume (only " + list + ")", kUsage);
+        }
       }
       config = (std::filesystem::path(resume_dir) / "config.toml").string();
       out_dir = resume_dir;

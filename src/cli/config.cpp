@@ -1228,4 +1228,29 @@ nlohmann::json config_to_json(const Config& c) {
   return j;
 }
 
+const std::vector<std::string>& resume_keys() {
+  static const std::vector<std::string> keys = {"run.t_end",   "run.max_steps", "run.vtk_interval",
+                                                "run.checkpoint_interval", "run.threads", "run.max_particles"};
+  return keys;
+}
+
+namespace {
+void flatten(const nlohmann::json& j, const std::string& path, std::map<std::string, std::string>& out) {
+  if (j.is_object()) {
+    for (const auto& [k, v] : j.items()) flatten(v, path.empty() ? k : path + "." + k, out);
+  } else if (j.is_array() && !j.empty() && j.front().is_object()) {  // arrays of tables; points stay values
+    for (std::size_t i = 0; i < j.size(); ++i) flatten(j[i], path + "[" + std::to_string(i) + "]", out);
+  } else {
+    out[path] = j.dump();
+  }
+}
+}  // namespace
+
+std::map<std::string, std::string> config_fingerprint(const Config& config) {
+  std::map<std::string, std::string> out;
+  flatten(config_to_json(parse_config_string(to_toml(config), {}, config.source)), "", out);
+  for (const std::string& k : resume_keys()) out.erase(k);
+  return out;
+}
+
 }  // namespace otfp::app

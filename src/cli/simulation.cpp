@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
 #include <charconv>
@@ -15,6 +16,7 @@
 #include <fstream>
 #include <iostream>
 #include <limits>
+#include <map>
 #include <numbers>
 #include <optional>
 
@@ -1264,6 +1266,8 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
     double t_origin = 0.0, dt_run = d.dt;
     std::int64_t k_origin = 0, n_total = d.n_steps, k_done = 0;
     const std::filesystem::path checkpoint_file = out / "checkpoint.bin";
+    // The configuration the checkpoints are written with (a resume must match it).
+    const std::map<std::string, std::string> fingerprint = write ? config_fingerprint(c) : std::map<std::string, std::string>{};
     // The driver's running sums, kept in the checkpoint next to the library state.
     auto driver_state = [&]() {
       nlohmann::json js;
@@ -1287,6 +1291,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       js["last_t"] = last.t;
       js["last_mass_ratio"] = last.mass_ratio;
       js["last_n"] = last.n_particles;
+      js["config"] = fingerprint;
       return js;
     };
     auto write_checkpoint = [&]() {
@@ -1317,15 +1322,56 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       // touched: a refused resume leaves the run's directory as it was.
       std::string series_text, timing_text;
       try {
-        std::string extra;
+        // The driver's data first: a checkpoint of another configuration is
+        // refused naming the key (the library would name its own field).
+        nlohmann::json js;
         try {
-          sim.load_checkpoint(checkpoint_file, &extra);
+          js = nlohmann::json::parse(otfp::Simulation::checkpoint_extra(checkpoint_file));
+        } catch (const nlohmann::json::exception& e) {
+          throw ResumeRefused(fmt::format("checkpoint {}: not written by otfp run (its driver state: {})",
+                                          checkpoint_file.string(), e.what()));
         } catch (const std::exception& e) {
           throw ResumeRefused(e.what());
         }
-        nlohmann::json js;
+        // The checkpoint's configuration against this one, key by key.
+        if (!js.contains("config") || !js["config"].is_object())
+          throw ResumeRefused(fmt::format("checkpoint {}: holds no configuration to compare with (written by an "
+                                          "older otfp?)",
+                                          checkpoint_file.string()));
+        std::map<std::string, std::string> theirs;
         try {
-          js = nlohmann::json::parse(extra);
+          theirs = js["config"].get<std::map<std::string, std::string>>();
+        } catch (const nlohmann::json::exception& e) {
+          throw ResumeRefused(fmt::format("checkpoint {}: its configuration is unreadable ({})",
+                                          checkpoint_file.string(), e.what()));
+        }
+        if (theirs != fingerprint) {
+          std::vector<std::string> differ;
+          auto shown = [](const std::map<std::string, std::string>& m, const std::string& k) {
+            const auto it = m.find(k);
+            return it == m.end() ? std::string("(absent)") : it->second;
+          };
+          for (const auto& [k, v] : fingerprint)
+            if (shown(theirs, k) != v)
+              differ.push_back(fmt::format("{} = {} (the checkpoint's: {})", k, v, shown(theirs, k)));
+          for (const auto& [k, v] : theirs)
+            if (!fingerprint.count(k)) differ.push_back(fmt::format("{} = (absent) (the checkpoint's: {})", k, v));
+          const std::size_t more = differ.size() > 3 ? differ.size() - 3 : 0;
+          differ.resize(std::min<std::size_t>(differ.size(), 3));
+          std::string list;
+          for (const std::string& x : differ) list += (list.empty() ? "" : "; ") + x;
+          if (more > 0) list += fmt::format("; and {} more", more);
+          throw ResumeRefused(fmt::format("{} differs from the run that wrote {}: {} (only {} may change on --resume, "
+                                          "with --set)",
+                                          (out / "config.toml").string(), checkpoint_file.string(), list,
+                                          fmt::join(resume_keys(), ", ")));
+        }
+        try {
+          sim.load_checkpoint(checkpoint_file);
+        } catch (const std::exception& e) {
+          throw ResumeRefused(e.what());
+        }
+        try {
           l1 = l1_from_state(js.at("l1"));
           prev_measures = measures_from_state(js.at("prev_measures"));
           S0 = js.at("S0").get<double>();
