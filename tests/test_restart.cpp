@@ -229,6 +229,9 @@ TEST(Restart, ResumeRefusesWhatItCannotContinue) {
     EXPECT_EQ(err.rfind(b.starts, 0), 0u) << err;
     EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
   }
+  // The refusal of a --set lists every key a resume may change.
+  cli(bad[0].args, err);
+  for (const std::string& key : resume_keys()) EXPECT_NE(err.find(key), std::string::npos) << key << " in " << err;
   fs::remove_all(dir);
 }
 
