@@ -241,8 +241,11 @@ std::string read_verified(const std::filesystem::path& path) {
   struct stat st {};
   if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
     ::close(fd);
-    throw InvalidArgument(name + (S_ISDIR(st.st_mode) ? "a directory" : "not a regular file") +
-                          " (a checkpoint is a file written by save_checkpoint)");
+    const char* kind = S_ISDIR(st.st_mode)                          ? "a directory"
+                       : S_ISFIFO(st.st_mode)                         ? "a FIFO"
+                       : S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode) ? "a device"
+                                                                      : "not a file";
+    throw InvalidArgument(name + "not a regular file (" + kind + ")");
   }
   const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
   const double memory = pages > 0 && page > 0 ? static_cast<double>(pages) * static_cast<double>(page) : 4e9;

@@ -1,6 +1,7 @@
 // Restart (checkpoints, --resume, interruption) and runs that start from a
 // particle file (particles.fill = "file").
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <algorithm>
 #include <filesystem>
@@ -184,6 +185,24 @@ TEST(Restart, LibraryRefusesACheckpointOfAnotherSetup) {
   EXPECT_NO_THROW(c->load_checkpoint(file));
   EXPECT_EQ(c->step_count(), 1);
   fs::remove(file);
+}
+
+// load_checkpoint on a FIFO (blocks) or a device (never ends) refuses at once.
+TEST(Restart, CheckpointMustBeARegularFile) {
+  const ConfiguredRun run(parse_config_file(kExamples / "free_space_heat.toml", {}));
+  const auto sim = run.make_simulation();
+  const fs::path fifo = fresh_dir("ckpt_fifo");
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  for (const fs::path& path : {fs::path("/dev/zero"), fifo, fs::temp_directory_path()}) {
+    try {
+      sim->load_checkpoint(path);
+      ADD_FAILURE() << path;
+    } catch (const otfp::InvalidArgument& e) {
+      EXPECT_NE(std::string(e.what()).find("not a regular file"), std::string::npos) << e.what();
+    }
+    EXPECT_THROW(otfp::Simulation::checkpoint_extra(path), otfp::InvalidArgument);
+  }
+  fs::remove(fifo);
 }
 
 // An explicit-stepper run's checkpoint resumes through the CLI, and the

@@ -665,11 +665,46 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     switch (e.stage()) {
       case Stage::Reservoir:
         throw ConfigError("treatment.dirichlet", "\"reservoir\"", std::string("not available here: ") + e.what());
-      case Stage::ReservoirMirror:
+      case Stage::ReservoirMirror: {
+        // The band w = reservoir_width x r_c (r_c from the kernel tolerance)
+        // in reservoir_sublayers sublayers: the key at fault is one whose
+        // default makes the setup work (tried here, on the error path only);
+        // otherwise the band is too wide for this domain and spacing.
+        auto works = [&](double tolerance, std::int64_t sublayers) {
+          SimulationOptions o = so;
+          const double w = tr.reservoir_width * cutoff_radius(d.width_s, tolerance);
+          o.projection.reservoir_thickness = w;
+          o.projection.reservoir_sublayers =
+              sublayers > 0 ? static_cast<int>(sublayers) : std::max(1, static_cast<int>(std::lround(2.0 * w / d.dr)));
+          o.implicit.neighbor.kernel_tolerance = o.explicit_options.neighbor.kernel_tolerance = tolerance;
+          try {
+            otfp::Simulation trial(domain_, st.data, o);
+            return true;
+          } catch (const std::exception&) {
+            return false;
+          }
+        };
+        const double default_tolerance = SolverSection{}.kernel_tolerance;
+        if (tr.reservoir_sublayers > 0 && works(c.solver.kernel_tolerance, 0))
+          throw ConfigError(
+              "treatment.reservoir_sublayers", fmt::format("{}", tr.reservoir_sublayers),
+              fmt::format("sublayers of {:.4g} (band {:.4g}, spacing dr = {:.4g}) are too thin for the odd profile to "
+                          "mirror inside Omega ({}); use fewer (0: round(2 w / dr) = {} works)",
+                          d.reservoir_width / static_cast<double>(tr.reservoir_sublayers), d.reservoir_width, d.dr,
+                          e.what(), std::max(1L, std::lround(2.0 * d.reservoir_width / d.dr))));
+        if (c.solver.kernel_tolerance != default_tolerance && works(default_tolerance, tr.reservoir_sublayers))
+          throw ConfigError(
+              "solver.kernel_tolerance", fmt::format("{}", c.solver.kernel_tolerance),
+              fmt::format("gives the kernel cut-off r_c = {:.4g} ({:.3g} widths) and so a reservoir band of "
+                          "treatment.reservoir_width x r_c = {:.4g} that the odd profile cannot mirror inside Omega "
+                          "({}); the default {} works",
+                          d.reservoir_width / tr.reservoir_width, d.reservoir_width / tr.reservoir_width / d.width_s,
+                          d.reservoir_width, e.what(), default_tolerance));
         throw ConfigError("treatment.reservoir_width", fmt::format("{}", tr.reservoir_width),
                           fmt::format("gives a band of {} that the odd profile cannot mirror inside Omega ({}); "
                                       "raise particles.n_inf or lower the width",
                                       d.reservoir_width, e.what()));
+      }
       case Stage::Projection:
         throw ConfigError("boundary", std::string("boundary: ") + e.what());
       case Stage::Periodic:

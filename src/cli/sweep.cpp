@@ -181,6 +181,17 @@ SweepAxis parse_vary(const std::string& text) {
 }
 
 std::vector<std::vector<std::string>> expand_grid(const std::vector<SweepAxis>& axes) {
+  // At most kMaxSweepRuns points (run_0000 ... run_9999), checked before
+  // the grid is built: three axes of 300 values would be 2.7e7 rows.
+  double runs = 1.0;
+  std::string sizes;
+  for (const SweepAxis& a : axes) {
+    runs *= static_cast<double>(a.values.size());
+    sizes += (sizes.empty() ? "" : " x ") + std::to_string(a.values.size());
+  }
+  if (runs > static_cast<double>(kMaxSweepRuns))
+    throw ConfigError("--vary", fmt::format("{} = {:.0f} runs", sizes, runs),
+                      fmt::format("must give at most {} runs", kMaxSweepRuns));
   std::vector<std::vector<std::string>> grid(1);
   for (const SweepAxis& a : axes) {
     std::vector<std::vector<std::string>> next;
@@ -234,6 +245,7 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
     throw ConfigError("--out", "\"" + o.out_dir.string() + "\"", "exists and is not a directory");
   if (::access(o.executable.c_str(), X_OK) != 0)
     throw ConfigError("executable", "\"" + o.executable.string() + "\"", "is not an executable otfp binary");
+  expand_grid(o.axes);  // its size is checked before the values are
   std::vector<std::string> keys;
   for (const SweepAxis& a : o.axes)
     for (const std::string& k : a.keys) {
