@@ -108,6 +108,27 @@ TEST(Restart, FinishedRunExtendsToTheSameSeries) {
   fs::remove_all(part);
 }
 
+// A resumed run keeps the step of the run it continues: with dt from
+// run.dt_factor (dt0 = 0.1 dr^2 = 0.007368 here) a run to t_end = 0.0075
+// takes 2 steps of 0.00375; extended to 0.0225 it goes on with 4 steps of
+// 0.00375 (not 3 of 0.005, which the raw dt0 gives).
+TEST(Restart, ExtendedRunKeepsItsStep) {
+  const fs::path dir = fresh_dir("extend_dt");
+  const std::string config = (kExamples / "free_space_heat.toml").string();
+  std::string err;
+  ASSERT_EQ(cli({"run", config, "--out", dir.string(), "--quiet", "--set", "run.t_end=0.0075"}, err), 0) << err;
+  auto rows = otfp::test::read_csv(dir / "series.csv");
+  ASSERT_EQ(rows.size(), 3u);
+  const double dt = std::stod(rows[1].at("dt"));
+  EXPECT_EQ(dt, 0.0075 / 2);
+  ASSERT_EQ(cli({"run", "--resume", dir.string(), "--quiet", "--set", "run.t_end=0.0225"}, err), 0) << err;
+  rows = otfp::test::read_csv(dir / "series.csv");
+  ASSERT_EQ(rows.size(), 7u) << "4 more steps of the run's dt";
+  for (std::size_t k = 3; k < rows.size(); ++k) EXPECT_NEAR(std::stod(rows[k].at("dt")), dt, 1e-15 * dt) << k;
+  EXPECT_EQ(std::stod(rows.back().at("t")), 0.0225);
+  fs::remove_all(dir);
+}
+
 // A run killed between checkpoints has rows after its last checkpoint: the
 // resumed run takes them again from the checkpoint, so the series is still
 // the uninterrupted one (no duplicate, no missing row).

@@ -1434,10 +1434,15 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
         if (!(c.run.t_end >= sim.time()))
           throw ResumeRefused(fmt::format("run.t_end = {}: must be >= the time t = {} of {} (step {})", c.run.t_end,
                                           sim.time(), checkpoint_file.string(), k_done));
-        if (!(js.at("k_origin").get<std::int64_t>() == 0 && js.at("dt_run").get<double>() == d.dt)) {
+        const double dt_before = js.at("dt_run").get<double>();
+        if (!(js.at("k_origin").get<std::int64_t>() == 0 && dt_before == d.dt)) {
           // A new t_end changed dt = t_end / n_steps: the rest of the run gets
-          // its own equal steps from the checkpoint on.
-          const double dt0 = c.run.dt ? *c.run.dt : c.run.dt_factor * d.dt_explicit;
+          // its own equal steps from the checkpoint on, as long as the steps
+          // of the run it continues (not the raw dt of run.dt or
+          // run.dt_factor, which t_end / n_steps rounded down).
+          const double dt0 = dt_before;
+          if (!(std::isfinite(dt0) && dt0 > 0.0))
+            throw ResumeRefused(fmt::format("checkpoint {}: its step dt = {} is not > 0", checkpoint_file.string(), dt0));
           t_origin = sim.time();
           k_origin = k_done;
           const std::int64_t m = std::max<std::int64_t>(
