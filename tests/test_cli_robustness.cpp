@@ -300,7 +300,8 @@ TEST(CliRobustness, SweepForwardsASignalAndRecordsInterruptedRuns) {
   const std::string text = read_text(log);
   ASSERT_TRUE(WIFEXITED(status)) << "the sweep was killed by the signal: " << text;
   EXPECT_EQ(WEXITSTATUS(status), 3) << text;
-  EXPECT_TRUE(contains(text, "otfp: error: sweep interrupted")) << text;
+  EXPECT_TRUE(contains(text, "otfp: sweep interrupted")) << text;
+  EXPECT_FALSE(contains(text, "error")) << "an intended interrupt is a notice: " << text;
   const auto rows = otfp::test::read_csv(dir / "runs.csv");
   ASSERT_EQ(rows.size(), 2u) << "the two runs started, not the third";
   for (const auto& row : rows) {
@@ -375,6 +376,8 @@ TEST(CliRobustness, SignalsEndTheRunInterruptedWithoutTemporaryFiles) {
     EXPECT_EQ(WEXITSTATUS(status), 3) << log;
     EXPECT_EQ(lines(log), 1) << log;
     EXPECT_TRUE(contains(log, "otfp run --resume " + dir.string())) << log;
+    EXPECT_EQ(log.rfind("otfp: ", 0), 0u) << log;
+    EXPECT_FALSE(contains(log, "error")) << "an intended interrupt is a notice: " << log;
     const std::string summary = read_text(dir / "summary.json");
     EXPECT_TRUE(contains(summary, "\"status\": \"interrupted\"")) << summary.substr(0, 300);
     EXPECT_EQ(temporary_files(dir), std::vector<std::string>{});
@@ -427,4 +430,27 @@ TEST(CliRobustness, ShortWriteRollsBackToTheLastCompleteRow) {
   for (const auto& e : fs::directory_iterator(dir))
     EXPECT_FALSE(contains(e.path().filename().string(), ".tmp")) << e.path();
   fs::remove_all(dir);
+}
+
+// A new user's slips get a hint: a misspelt command or option names the
+// nearest one, CONFIG is checked before --out is asked for, a control
+// character in a path stays escaped on the one line, and run --help shows
+// the placeholders and the exit codes.
+TEST(CliRobustness, SlipsGetAHint) {
+  std::string text;
+  EXPECT_EQ(run_binary("rn " + kFast, text), 2);
+  EXPECT_EQ(text, "otfp: error: unknown command 'rn' (did you mean 'run'? commands: run, check, sweep)\n");
+  EXPECT_EQ(run_binary("run " + kFast + " --ouput x", text), 2);
+  EXPECT_TRUE(contains(text, "--ouput") && contains(text, "did you mean --out?")) << text;
+  EXPECT_EQ(lines(text), 1) << text;
+  EXPECT_EQ(run_binary("run nothere.toml", text), 2);
+  EXPECT_EQ(text.rfind("otfp: error: cannot read CONFIG: nothere.toml: ", 0), 0u) << text;
+  EXPECT_EQ(run_binary("run " + kFast + " --out \"$(printf '/dev/null/a\\nb')\"" + kShort, text), 2);
+  EXPECT_EQ(lines(text), 1) << text;
+  EXPECT_TRUE(contains(text, "/dev/null/a\\x0ab")) << text;
+  EXPECT_EQ(run_binary("run --help", text), 0);
+  EXPECT_TRUE(contains(text, "--resume DIR")) << text;
+  EXPECT_TRUE(contains(text, "--out DIR")) << text;
+  for (const char* code : {"0 ", "1 ", "2 ", "3 "}) EXPECT_TRUE(contains(text, code)) << text;
+  EXPECT_TRUE(contains(text, "Exit codes")) << text;
 }

@@ -884,6 +884,30 @@ TEST(Config, FillFileThatIsNotAFileSaysWhatItIs) {
       << message("/nonexistent/p.csv");
 }
 
+// Values refused before any work: particles.layer_b where no patch uses the
+// layer (the converging preset's reservoir sphere), a Gaussian fill wider
+// than 1e6 domain sizes (exit 1 after writing files: its squares overflow).
+TEST(Config, KeysWithoutEffectOrBeyondRangeAreRefusedBeforeWork) {
+  const std::filesystem::path examples = std::filesystem::path(OTFP_SOURCE_DIR) / "examples";
+  auto message = [&](const char* example, const std::vector<std::string>& sets) {
+    try {
+      const ConfiguredRun run(parse_config_file(examples / example, sets));
+      return std::string();
+    } catch (const ConfigError& e) {
+      return std::string(e.what());
+    }
+  };
+  EXPECT_EQ(message("sphere_dirichlet.toml", {"particles.layer_b=10"}).rfind("particles.layer_b = 10: has no effect", 0), 0u)
+      << message("sphere_dirichlet.toml", {"particles.layer_b=10"});
+  EXPECT_EQ(message("sphere_dirichlet.toml", {"particles.layer_b=0.1"}).rfind("particles.layer_b = 0.1: has no effect", 0),
+            0u);
+  EXPECT_EQ(message("sphere_dirichlet.toml", {"particles.layer_b=0.1", "treatment.preset=papers"}), "");
+  EXPECT_EQ(message("pipe_neumann.toml", {"particles.layer_b=0.05"}), "") << "a Neumann patch uses the layer";
+  EXPECT_EQ(message("free_space_heat.toml", {"particles.fill_sigma=1e300"}).rfind("particles.fill_sigma = 1e+300: must be at most 1e6 domain sizes", 0), 0u)
+      << message("free_space_heat.toml", {"particles.fill_sigma=1e300"});
+  EXPECT_EQ(message("free_space_heat.toml", {"particles.fill_sigma=10"}), "");
+}
+
 TEST(Config, CheckpointInterval) {
   EXPECT_EQ(parse_config_string("").run.checkpoint_interval, 100);
   const Config c = parse_config_string(kBase, {"run.checkpoint_interval=0"});

@@ -292,6 +292,9 @@ void ConfiguredRun::check_magnitudes(const std::vector<ConstantBoundaryData>& da
   };
   point_near("diagnostics.center", c.diagnostics.center);
   point_near("particles.fill_center", c.particles.fill_center);
+  if (c.particles.fill == "gaussian" && !(c.particles.fill_sigma <= far))
+    throw ConfigError("particles.fill_sigma", fmt::format("{}", c.particles.fill_sigma),
+                      fmt::format("must be at most 1e6 domain sizes ({:.4g})", far));
   const double speed = length(c.physics.velocity, Vec3::Zero());
   if (!(speed * c.run.t_end <= far))
     throw ConfigError("physics.velocity", vec(c.physics.velocity),
@@ -389,6 +392,13 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   d.true_spacing = spacing(d.volume, static_cast<std::size_t>(c.particles.n_inf), dim);
   d.beta_true_spacing2 = d.beta * d.true_spacing * d.true_spacing;
   d.layer_b = c.particles.layer_b > 0.0 ? c.particles.layer_b : pp.layer_b;
+  // Given where nothing uses it, it would only seem to have been applied.
+  if (c.particles.layer_b > 0.0 && !any_layer)
+    throw ConfigError("particles.layer_b", fmt::format("{}", c.particles.layer_b),
+                      fmt::format("has no effect here: no patch uses the boundary layer (it serves Neumann patches, "
+                                  "and Dirichlet patches with treatment.dirichlet = \"layer\"; here there is no Neumann "
+                                  "patch and treatment.dirichlet = \"{}\"); remove it",
+                                  c.treatment.dirichlet));
   if (any_layer && !(d.layer_b < 0.5 * st.built.min_extent))
     throw ConfigError("particles.layer_b",
                       fmt::format("{}{}", d.layer_b, c.particles.layer_b > 0.0 ? "" : " (sqrt(length_L dr))"),
