@@ -266,6 +266,56 @@ TEST(CliRobustness, SetIsStrict) {
   fs::remove_all(dir);
 }
 
+// A sweep killed outright (SIGKILL: no handler runs) takes its runs with it:
+// each run asks the kernel for SIGTERM when its parent dies, stops after its
+// step as on Ctrl-C, and is gone within seconds instead of running on.
+TEST(CliRobustness, SweepKilledOutrightStopsItsRuns) {
+  const fs::path dir = fresh_dir("robust_sweep_kill");
+  const std::vector<std::string> args = {OTFP_CLI_PATH, "sweep", kExample, "--vary", "particles.n_inf=400,401",
+                                         "--jobs", "2", "--out", dir.string(), "--quiet", "--set", "run.t_end=100"};
+  const pid_t pid = ::fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    const int fd = ::open("/dev/null", O_WRONLY);
+    if (fd >= 0) {
+      ::dup2(fd, STDOUT_FILENO);
+      ::dup2(fd, STDERR_FILENO);
+    }
+    std::vector<char*> argv;
+    for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    ::execv(argv[0], argv.data());
+    ::_exit(127);
+  }
+  // The runs' pids: their lock files hold them once they step.
+  std::vector<pid_t> runs;
+  for (int i = 0; i < 600 && runs.size() < 2; ++i) {
+    runs.clear();
+    for (const char* r : {"run_000", "run_001"})
+      if (fs::exists(dir / r / "series.csv")) {
+        const std::string text = read_text(dir / r / ".otfp.lock");
+        if (!text.empty()) runs.push_back(static_cast<pid_t>(std::stol(text)));
+      }
+    if (runs.size() < 2) ::usleep(50000);
+  }
+  ASSERT_EQ(runs.size(), 2u);
+  ::kill(pid, SIGKILL);
+  int status = 0;
+  ASSERT_EQ(::waitpid(pid, &status, 0), pid);
+  for (const pid_t run : runs) {
+    bool gone = false;
+    for (int i = 0; i < 200 && !gone; ++i) {
+      // Gone, or a zombie waiting for its new parent to reap it.
+      const std::string stat = read_text("/proc/" + std::to_string(run) + "/stat");
+      gone = stat.empty() || stat.find(") Z ") != std::string::npos;
+      if (!gone) ::usleep(50000);
+    }
+    EXPECT_TRUE(gone) << "run " << run << " is still running after its sweep was killed";
+    if (!gone) ::kill(run, SIGKILL);
+  }
+  fs::remove_all(dir);
+}
+
 // SIGINT to `otfp sweep`: it passes the signal on to its running runs, reaps
 // them, writes runs.csv with the rows it has (the stopped runs "interrupted")
 // and exits with code 3.

@@ -1,12 +1,14 @@
 #include "otfp_app/cli.hpp"
 
 #include <fcntl.h>
+#include <sys/prctl.h>
 #include <sys/file.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
 #include <cerrno>
 #include <csignal>
+#include <cstdlib>
 #include <cstring>
 
 #include <CLI/CLI.hpp>
@@ -432,6 +434,17 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
                    kUsage);
     }
   }
+
+  // A run started by `otfp sweep`: SIGTERM (stop after the step, checkpoint)
+  // when the sweep dies, even by SIGKILL; if it is already gone, stop now.
+  if (run->parsed())
+    if (const char* sweep_pid = std::getenv("OTFP_SWEEP_PID")) {
+      ::prctl(PR_SET_PDEATHSIG, SIGTERM);
+      if (std::to_string(::getppid()) != sweep_pid) {
+        err << "otfp: the sweep that started this run (pid " << escaped(sweep_pid) << ") is gone; not started\n";
+        return kExitInterrupted;
+      }
+    }
 
   int code = 0;
   std::unique_ptr<ConfiguredRun> sim = load(config, sets, err, code);

@@ -332,8 +332,17 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
     posix_spawnattr_setsigdefault(&attr, &defaults);
     posix_spawnattr_setpgroup(&attr, 0);
     posix_spawnattr_setflags(&attr, POSIX_SPAWN_SETPGROUP | POSIX_SPAWN_SETSIGMASK | POSIX_SPAWN_SETSIGDEF);
+    // OTFP_SWEEP_PID: the run asks for SIGTERM when this process dies (a
+    // sweep killed outright must not leave its runs running; cli.cpp).
+    std::vector<std::string> env_text;
+    for (char** e = environ; *e; ++e)
+      if (std::string(*e).rfind("OTFP_SWEEP_PID=", 0) != 0) env_text.emplace_back(*e);
+    env_text.push_back("OTFP_SWEEP_PID=" + std::to_string(::getpid()));
+    std::vector<char*> envp;
+    for (std::string& e : env_text) envp.push_back(e.data());
+    envp.push_back(nullptr);
     pid_t pid = -1;
-    const int rc = posix_spawn(&pid, argv[0], &fa, &attr, argv.data(), environ);
+    const int rc = posix_spawn(&pid, argv[0], &fa, &attr, argv.data(), envp.data());
     posix_spawnattr_destroy(&attr);
     posix_spawn_file_actions_destroy(&fa);
     if (rc != 0) throw std::runtime_error(fmt::format("cannot start {}: {}", argv[0], std::strerror(rc)));
