@@ -316,6 +316,25 @@ TEST(CliRobustness, SweepKilledOutrightStopsItsRuns) {
   fs::remove_all(dir);
 }
 
+// A file-size limit too small for even the first summary.json: the one line
+// says that there is none, not that it "may still say running".
+TEST(CliRobustness, NoSummaryIsNotCalledStale) {
+  const fs::path dir = fresh_dir("tiny_limit");
+  const fs::path out_file = fresh_dir("tiny_limit_out");
+  const std::string cmd = "bash -c 'ulimit -f 4; exec " + std::string(OTFP_CLI_PATH) + " run " + kFast + " --out " +
+                          dir.string() + kShort + "' >" + out_file.string() + " 2>&1";
+  const int status = std::system(cmd.c_str());
+  const std::string output = read_text(out_file);
+  fs::remove(out_file);
+  ASSERT_TRUE(WIFEXITED(status)) << output;
+  EXPECT_EQ(WEXITSTATUS(status), 1) << output;
+  EXPECT_EQ(lines(output), 1) << output;
+  ASSERT_FALSE(fs::exists(dir / "summary.json"));
+  EXPECT_FALSE(contains(output, "may still say")) << output;
+  EXPECT_TRUE(contains(output, "no summary.json")) << output;
+  fs::remove_all(dir);
+}
+
 // SIGINT to `otfp sweep`: it passes the signal on to its running runs, reaps
 // them, writes runs.csv with the rows it has (the stopped runs "interrupted")
 // and exits with code 3.

@@ -1563,8 +1563,13 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
         result.error = e.what();
         result.exit_code = 1;
       } else {
-        result.error += fmt::format("; summary.json could not be updated either ({}): it may still say \"running\"",
-                                    e.what());
+        std::error_code ec;
+        result.error += std::filesystem::exists(out / "summary.json", ec)
+                            ? fmt::format("; summary.json could not be updated either ({}): it may still say "
+                                          "\"running\"",
+                                          e.what())
+                            : fmt::format("; summary.json could not be written either ({}): there is no summary.json",
+                                          e.what());
       }
     }
   }
