@@ -1,7 +1,12 @@
 #include "otfp/particle_io.hpp"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <bit>
 #include <cerrno>
 #include <charconv>
@@ -100,6 +105,7 @@ ParticleSet build(const Columns& c, int dim, const Locator& where) {
     if (c.has_id) {
       const ParticleId id = c.id[i];
       if (id < 0) fail(where(i, "id"), fmt::format("{}", id), "must be >= 0");
+      if (id > kMaxParticleId) fail(where(i, "id"), fmt::format("{}", id), fmt::format("must be <= 2^62 = {}", kMaxParticleId));
       const auto [it, fresh] = first.emplace(id, i);
       if (!fresh) fail(where(i, "id"), fmt::format("{}", id), "duplicates the id on " + where.at(it->second));
       ps.add_with_id(id, c.x[i], s, m, t0);
@@ -143,6 +149,10 @@ ParticleSet read_csv(const std::string& text, const std::string& file, int dim) 
     if (j < 0) fail(header_where, header_text, fmt::format("has no column '{}'", name));
     return j;
   };
+  // A column read twice would be a guess at which one is meant.
+  for (const char* name : {"x", "y", "z", "mass", "width_s", "beta", "id", "birth_time"})
+    if (std::count(header.begin(), header.end(), std::string_view(name)) > 1)
+      fail(header_where, header_text, fmt::format("has the column '{}' twice", name));
   static const char* kAxis[3] = {"x", "y", "z"};
   int jx[3];
   for (int k = 0; k < 3; ++k) jx[k] = k < dim ? need(kAxis[k]) : column(kAxis[k]);
@@ -234,6 +244,10 @@ ParticleSet read_vtp(const std::string& bytes, const std::string& file, int dim)
     const auto [end, ec] = std::from_chars(np_text.data(), np_text.data() + np_text.size(), n);
     if (np_text.empty() || ec != std::errc() || end != np_text.data() + np_text.size())
       fail(head_where + " Piece NumberOfPoints", np_text, "must be an integer >= 0");
+    // Before any array is sized by it (n x 24 bytes may wrap around).
+    if (n > bytes.size() / 24)
+      fail(head_where + " Piece NumberOfPoints", np_text,
+           fmt::format("more points than the file's {} bytes can hold (24 bytes of position each)", bytes.size()));
   }
 
   // Every DataArray declared in the header, by name.
@@ -326,10 +340,38 @@ ParticleSet read_particles(const std::filesystem::path& path, int dim) {
   if (std::filesystem::is_directory(path, ec)) fail("particle file", file, "is a directory, not a file");
   const std::string ext = path.extension().string();
   if (ext != ".csv" && ext != ".vtp") fail("particle file", file, "must end in .csv or .vtp");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail("particle file", file, fmt::format("cannot be read ({})", std::strerror(errno)));
-  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) fail("particle file", file, "cannot be read");
+  // A regular file only: a FIFO would block the read, a device such as
+  // /dev/zero never ends. At most half the machine's memory.
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK);
+  if (fd < 0) fail("particle file", file, fmt::format("cannot be read ({})", std::strerror(errno)));
+  struct stat st {};
+  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+    ::close(fd);
+    const char* kind = S_ISFIFO(st.st_mode) ? "a FIFO"
+                       : S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode) ? "a device"
+                       : S_ISSOCK(st.st_mode) ? "a socket"
+                                              : "not a file";
+    fail("particle file", file, fmt::format("is not a regular file ({})", kind));
+  }
+  const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGE_SIZE);
+  const double memory = pages > 0 && page > 0 ? static_cast<double>(pages) * static_cast<double>(page) : 4e9;
+  if (static_cast<double>(st.st_size) > 0.5 * memory) {
+    ::close(fd);
+    fail("particle file", file, fmt::format("has {} bytes, more than half this machine's memory", st.st_size));
+  }
+  std::string bytes(static_cast<std::size_t>(st.st_size), '\0');
+  std::size_t got = 0;
+  while (got < bytes.size()) {
+    const ssize_t r = ::read(fd, bytes.data() + got, bytes.size() - got);
+    if (r < 0 && errno == EINTR) continue;
+    if (r <= 0) {
+      const std::string why = r == 0 ? "it shrank while read" : std::strerror(errno);
+      ::close(fd);
+      fail("particle file", file, fmt::format("cannot be read ({})", why));
+    }
+    got += static_cast<std::size_t>(r);
+  }
+  ::close(fd);
   if (trimmed(bytes).find_first_not_of("\n\r\t ") == std::string_view::npos) fail("particle file", file, "is empty");
   return ext == ".csv" ? read_csv(bytes, file, dim) : read_vtp(bytes, file, dim);
 }

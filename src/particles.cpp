@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <limits>
 #include <string>
 
 namespace otfp {
@@ -12,10 +13,19 @@ ParticleSet::ParticleSet(int dim) : dim_(dim) {
 }
 
 ParticleId ParticleSet::add(const Vec3& x, double width_s, double mass, double birth_time) {
-  return add_with_id(next_id_, x, width_s, mass, birth_time);
+  // Past kMaxParticleId only by add() itself: 2^62 more particles before this.
+  require(next_id_ < std::numeric_limits<ParticleId>::max(), "next particle id", std::to_string(next_id_),
+          "is the largest id there is: no more particles can be added");
+  return insert(next_id_, x, width_s, mass, birth_time);
 }
 
 ParticleId ParticleSet::add_with_id(ParticleId id, const Vec3& x, double width_s, double mass, double birth_time) {
+  require(id <= kMaxParticleId, "particle id", std::to_string(id),
+          "must be <= 2^62 = " + std::to_string(kMaxParticleId));
+  return insert(id, x, width_s, mass, birth_time);
+}
+
+ParticleId ParticleSet::insert(ParticleId id, const Vec3& x, double width_s, double mass, double birth_time) {
   require(std::isfinite(width_s) && width_s > 0.0, "particle width s", width_s, "must be finite and > 0");
   require(std::isfinite(mass) && mass > 0.0, "particle mass", mass, "must be finite and > 0");
   require(x.allFinite(), "particle position", x.norm(), "must be finite");
@@ -81,6 +91,8 @@ void ParticleSet::reserve(std::size_t n) {
 
 void ParticleSet::set_next_id(ParticleId next) {
   require(next >= 0, "next particle id", std::to_string(next), "must be >= 0");
+  require(next <= kMaxParticleId + 1, "next particle id", std::to_string(next),
+          "must be <= 2^62 + 1 = " + std::to_string(kMaxParticleId + 1));
   for (ParticleId id : id_)
     require(next > id, "next particle id", std::to_string(next),
             "must be > every id present (id " + std::to_string(id) + " is)");

@@ -266,6 +266,75 @@ TEST(CliRobustness, SetIsStrict) {
   fs::remove_all(dir);
 }
 
+// A sweep killed outright (SIGKILL: no handler runs) takes its runs with it:
+// each run asks the kernel for SIGTERM when its parent dies, stops after its
+// step as on Ctrl-C, and is gone within seconds instead of running on.
+TEST(CliRobustness, SweepKilledOutrightStopsItsRuns) {
+  const fs::path dir = fresh_dir("robust_sweep_kill");
+  const std::vector<std::string> args = {OTFP_CLI_PATH, "sweep", kExample, "--vary", "particles.n_inf=400,401",
+                                         "--jobs", "2", "--out", dir.string(), "--quiet", "--set", "run.t_end=100"};
+  const pid_t pid = ::fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    const int fd = ::open("/dev/null", O_WRONLY);
+    if (fd >= 0) {
+      ::dup2(fd, STDOUT_FILENO);
+      ::dup2(fd, STDERR_FILENO);
+    }
+    std::vector<char*> argv;
+    for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    ::execv(argv[0], argv.data());
+    ::_exit(127);
+  }
+  // The runs' pids: their lock files hold them once they step.
+  std::vector<pid_t> runs;
+  for (int i = 0; i < 600 && runs.size() < 2; ++i) {
+    runs.clear();
+    for (const char* r : {"run_000", "run_001"})
+      if (fs::exists(dir / r / "series.csv")) {
+        const std::string text = read_text(dir / r / ".otfp.lock");
+        if (!text.empty()) runs.push_back(static_cast<pid_t>(std::stol(text)));
+      }
+    if (runs.size() < 2) ::usleep(50000);
+  }
+  ASSERT_EQ(runs.size(), 2u);
+  ::kill(pid, SIGKILL);
+  int status = 0;
+  ASSERT_EQ(::waitpid(pid, &status, 0), pid);
+  for (const pid_t run : runs) {
+    bool gone = false;
+    for (int i = 0; i < 200 && !gone; ++i) {
+      // Gone, or a zombie waiting for its new parent to reap it.
+      const std::string stat = read_text("/proc/" + std::to_string(run) + "/stat");
+      gone = stat.empty() || stat.find(") Z ") != std::string::npos;
+      if (!gone) ::usleep(50000);
+    }
+    EXPECT_TRUE(gone) << "run " << run << " is still running after its sweep was killed";
+    if (!gone) ::kill(run, SIGKILL);
+  }
+  fs::remove_all(dir);
+}
+
+// A file-size limit too small for even the first summary.json: the one line
+// says that there is none, not that it "may still say running".
+TEST(CliRobustness, NoSummaryIsNotCalledStale) {
+  const fs::path dir = fresh_dir("tiny_limit");
+  const fs::path out_file = fresh_dir("tiny_limit_out");
+  const std::string cmd = "bash -c 'ulimit -f 4; exec " + std::string(OTFP_CLI_PATH) + " run " + kFast + " --out " +
+                          dir.string() + kShort + "' >" + out_file.string() + " 2>&1";
+  const int status = std::system(cmd.c_str());
+  const std::string output = read_text(out_file);
+  fs::remove(out_file);
+  ASSERT_TRUE(WIFEXITED(status)) << output;
+  EXPECT_EQ(WEXITSTATUS(status), 1) << output;
+  EXPECT_EQ(lines(output), 1) << output;
+  ASSERT_FALSE(fs::exists(dir / "summary.json"));
+  EXPECT_FALSE(contains(output, "may still say")) << output;
+  EXPECT_TRUE(contains(output, "no summary.json")) << output;
+  fs::remove_all(dir);
+}
+
 // SIGINT to `otfp sweep`: it passes the signal on to its running runs, reaps
 // them, writes runs.csv with the rows it has (the stopped runs "interrupted")
 // and exits with code 3.
@@ -300,7 +369,8 @@ TEST(CliRobustness, SweepForwardsASignalAndRecordsInterruptedRuns) {
   const std::string text = read_text(log);
   ASSERT_TRUE(WIFEXITED(status)) << "the sweep was killed by the signal: " << text;
   EXPECT_EQ(WEXITSTATUS(status), 3) << text;
-  EXPECT_TRUE(contains(text, "otfp: error: sweep interrupted")) << text;
+  EXPECT_TRUE(contains(text, "otfp: sweep interrupted")) << text;
+  EXPECT_FALSE(contains(text, "error")) << "an intended interrupt is a notice: " << text;
   const auto rows = otfp::test::read_csv(dir / "runs.csv");
   ASSERT_EQ(rows.size(), 2u) << "the two runs started, not the third";
   for (const auto& row : rows) {
@@ -375,6 +445,8 @@ TEST(CliRobustness, SignalsEndTheRunInterruptedWithoutTemporaryFiles) {
     EXPECT_EQ(WEXITSTATUS(status), 3) << log;
     EXPECT_EQ(lines(log), 1) << log;
     EXPECT_TRUE(contains(log, "otfp run --resume " + dir.string())) << log;
+    EXPECT_EQ(log.rfind("otfp: ", 0), 0u) << log;
+    EXPECT_FALSE(contains(log, "error")) << "an intended interrupt is a notice: " << log;
     const std::string summary = read_text(dir / "summary.json");
     EXPECT_TRUE(contains(summary, "\"status\": \"interrupted\"")) << summary.substr(0, 300);
     EXPECT_EQ(temporary_files(dir), std::vector<std::string>{});
@@ -427,4 +499,27 @@ TEST(CliRobustness, ShortWriteRollsBackToTheLastCompleteRow) {
   for (const auto& e : fs::directory_iterator(dir))
     EXPECT_FALSE(contains(e.path().filename().string(), ".tmp")) << e.path();
   fs::remove_all(dir);
+}
+
+// A new user's slips get a hint: a misspelt command or option names the
+// nearest one, CONFIG is checked before --out is asked for, a control
+// character in a path stays escaped on the one line, and run --help shows
+// the placeholders and the exit codes.
+TEST(CliRobustness, SlipsGetAHint) {
+  std::string text;
+  EXPECT_EQ(run_binary("rn " + kFast, text), 2);
+  EXPECT_EQ(text, "otfp: error: unknown command 'rn' (did you mean 'run'? commands: run, check, sweep)\n");
+  EXPECT_EQ(run_binary("run " + kFast + " --ouput x", text), 2);
+  EXPECT_TRUE(contains(text, "--ouput") && contains(text, "did you mean --out?")) << text;
+  EXPECT_EQ(lines(text), 1) << text;
+  EXPECT_EQ(run_binary("run nothere.toml", text), 2);
+  EXPECT_EQ(text.rfind("otfp: error: cannot read CONFIG: nothere.toml: ", 0), 0u) << text;
+  EXPECT_EQ(run_binary("run " + kFast + " --out \"$(printf '/dev/null/a\\nb')\"" + kShort, text), 2);
+  EXPECT_EQ(lines(text), 1) << text;
+  EXPECT_TRUE(contains(text, "/dev/null/a\\x0ab")) << text;
+  EXPECT_EQ(run_binary("run --help", text), 0);
+  EXPECT_TRUE(contains(text, "--resume DIR")) << text;
+  EXPECT_TRUE(contains(text, "--out DIR")) << text;
+  for (const char* code : {"0 ", "1 ", "2 ", "3 "}) EXPECT_TRUE(contains(text, code)) << text;
+  EXPECT_TRUE(contains(text, "Exit codes")) << text;
 }

@@ -799,7 +799,7 @@ TEST(Config, RangeRulesOfTheTable) {
       {kBase, {"run.dim=9999999999"}, "run.dim = 9999999999: out of range"},
       {kBase, {"run.seed=-1"}, "run.seed = -1: must be >= 0"},
       {kBase, {"run.threads=5000"}, "run.threads = 5000: must be in [0, 4096] (0: OpenMP default)"},
-      {kBase, {"run.dt_min=-1"}, "run.dt_min = -1: must be >= 0"},
+      {kBase, {"run.dt_min=-1"}, "run.dt_min = -1: must be > 0"},
       {kBase, {"run.checkpoint_interval=-1"}, "run.checkpoint_interval = -1: must be >= 0"},
       {kBase, {"domain.radius=-0.5"}, "domain.radius = -0.5: must be > 0"},
       {sub, {}, "domain.subpatch[0].radius = (missing): required, > 0"},
@@ -826,6 +826,86 @@ TEST(Config, RangeRulesOfTheTable) {
   // A rule that holds only where its key is used: domain.radius is not a box's.
   EXPECT_NO_THROW(parse_config_string("[domain]\ntype = \"box\"\nradius = -1\n"));
   EXPECT_EQ(rejection(kBase, {"run.checkpoint_interval=0"}), "");
+}
+
+// A setup that fails names the key at fault, not a bystander: a kernel
+// tolerance of 1e-300 makes the cut-off (and so the reservoir band, in
+// cut-offs) deeper than the ball; 1000 sublayers are too thin to sample;
+// both used to blame treatment.reservoir_width. dt_min = 0 lets a tiny
+// tolerance shrink the step to 0 (exit 1 "dt = 0" after writing files).
+TEST(Config, SetupErrorsNameTheKeyAtFault) {
+  const std::string sphere = (std::filesystem::path(OTFP_SOURCE_DIR) / "examples" / "sphere_dirichlet.toml").string();
+  auto message = [&](const std::vector<std::string>& sets) {
+    try {
+      const ConfiguredRun run(parse_config_file(sphere, sets));
+      return std::string();
+    } catch (const ConfigError& e) {
+      return std::string(e.what());
+    }
+  };
+  EXPECT_EQ(message({"solver.kernel_tolerance=1e-300"}).rfind("solver.kernel_tolerance = 1e-300: ", 0), 0u)
+      << message({"solver.kernel_tolerance=1e-300"});
+  EXPECT_EQ(message({"solver.kernel_tolerance=1e-300", "treatment.reservoir_sublayers=1000"})
+                .rfind("solver.kernel_tolerance = 1e-300: ", 0),
+            0u)
+      << message({"solver.kernel_tolerance=1e-300", "treatment.reservoir_sublayers=1000"});
+  // n_inf = 100: a band a little deeper than the radius; its default 6
+  // sublayers mirror, 1000 do not.
+  EXPECT_EQ(message({"particles.n_inf=100"}), "");
+  EXPECT_EQ(message({"particles.n_inf=100", "treatment.reservoir_sublayers=1000"})
+                .rfind("treatment.reservoir_sublayers = 1000: ", 0),
+            0u)
+      << message({"particles.n_inf=100", "treatment.reservoir_sublayers=1000"});
+  // A band too wide whatever the other keys: the width is at fault.
+  EXPECT_EQ(message({"treatment.reservoir_width=10"}).rfind("treatment.reservoir_width = 10: ", 0), 0u)
+      << message({"treatment.reservoir_width=10"});
+  EXPECT_EQ(message({"run.dt_mode=adaptive", "run.dt_min=0", "run.time_tolerance=1e-30"}),
+            "run.dt_min = 0: must be > 0");
+  EXPECT_EQ(message({"run.dt_mode=adaptive", "run.dt_min=1e-300"}).rfind("run.dt_min = 1e-300: must be >= 1e-9 x run.t_end", 0), 0u)
+      << message({"run.dt_mode=adaptive", "run.dt_min=1e-300"});
+  EXPECT_EQ(message({"run.dt_mode=adaptive", "run.dt_min=1e-6"}), "");
+}
+
+// A fill_file that is not a regular file is named for what it is, not "no such file".
+TEST(Config, FillFileThatIsNotAFileSaysWhatItIs) {
+  const std::string dir = std::filesystem::temp_directory_path().string();
+  auto message = [](const std::string& file) {
+    try {
+      parse_config_string("[particles]\nfill = \"file\"\nfill_file = \"" + file + "\"\n");
+      return std::string();
+    } catch (const ConfigError& e) {
+      return std::string(e.what());
+    }
+  };
+  EXPECT_EQ(message("/dev/null"),
+            "particles.fill_file = \"/dev/null\": is a device, not a particle file (.csv or .vtp)");
+  EXPECT_EQ(message(dir), "particles.fill_file = \"" + dir + "\": is a directory, not a particle file (.csv or .vtp)");
+  EXPECT_EQ(message("/nonexistent/p.csv").rfind("particles.fill_file = \"/nonexistent/p.csv\": no such file", 0), 0u)
+      << message("/nonexistent/p.csv");
+}
+
+// Values refused before any work: particles.layer_b where no patch uses the
+// layer (the converging preset's reservoir sphere), a Gaussian fill wider
+// than 1e6 domain sizes (exit 1 after writing files: its squares overflow).
+TEST(Config, KeysWithoutEffectOrBeyondRangeAreRefusedBeforeWork) {
+  const std::filesystem::path examples = std::filesystem::path(OTFP_SOURCE_DIR) / "examples";
+  auto message = [&](const char* example, const std::vector<std::string>& sets) {
+    try {
+      const ConfiguredRun run(parse_config_file(examples / example, sets));
+      return std::string();
+    } catch (const ConfigError& e) {
+      return std::string(e.what());
+    }
+  };
+  EXPECT_EQ(message("sphere_dirichlet.toml", {"particles.layer_b=10"}).rfind("particles.layer_b = 10: has no effect", 0), 0u)
+      << message("sphere_dirichlet.toml", {"particles.layer_b=10"});
+  EXPECT_EQ(message("sphere_dirichlet.toml", {"particles.layer_b=0.1"}).rfind("particles.layer_b = 0.1: has no effect", 0),
+            0u);
+  EXPECT_EQ(message("sphere_dirichlet.toml", {"particles.layer_b=0.1", "treatment.preset=papers"}), "");
+  EXPECT_EQ(message("pipe_neumann.toml", {"particles.layer_b=0.05"}), "") << "a Neumann patch uses the layer";
+  EXPECT_EQ(message("free_space_heat.toml", {"particles.fill_sigma=1e300"}).rfind("particles.fill_sigma = 1e+300: must be at most 1e6 domain sizes", 0), 0u)
+      << message("free_space_heat.toml", {"particles.fill_sigma=1e300"});
+  EXPECT_EQ(message("free_space_heat.toml", {"particles.fill_sigma=10"}), "");
 }
 
 TEST(Config, CheckpointInterval) {

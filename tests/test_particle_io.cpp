@@ -1,4 +1,5 @@
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -162,4 +163,33 @@ TEST(ParticleIo, BadFilesAreRejectedWithOneLine) {
   expect("nomass.vtp", std::string(doc).replace(doc.find("Name=\"mass\""), 11, "Name=\"mast\""),
          " '" + p + "nomass.vtp' DataArray = 'mass': is required but missing", 2);
   expect("notvtk.vtp", "hello", " '" + p + "notvtk.vtp' = 'no <VTKFile> element': must be VTK XML PolyData");
+  // Ids beyond 2^62 (id + 1 would overflow later).
+  expect("bigid.csv", "id,x,mass,width_s\n9223372036854775807,0,1,1\n",
+         " '" + p + "bigid.csv' line 2 column id = '9223372036854775807': must be <= 2^62 = 4611686018427387904", 1);
+  // A point count the file cannot hold (24 x 2^61 wraps to 0 bytes).
+  const std::string np = "NumberOfPoints=\"2\"";
+  ASSERT_NE(doc.find(np), std::string::npos);
+  const std::string huge = std::string(doc).replace(doc.find(np), np.size(), "NumberOfPoints=\"2305843009213693952\"");
+  expect("huge.vtp", huge,
+         " '" + p + "huge.vtp' Piece NumberOfPoints = '2305843009213693952': more points than the file's " +
+             std::to_string(huge.size()) + " bytes can hold (24 bytes of position each)",
+         2);
+  // Two columns of one name: which one is meant is not known.
+  expect("twox.csv", "x,mass,x,width_s\n0,1,5,1\n",
+         " '" + p + "twox.csv' line 1 (header) = 'x,mass,x,width_s': has the column 'x' twice", 1);
+}
+
+// Not a regular file: a FIFO would block the read and a device such as
+// /dev/zero never ends; both are refused at once, naming what the path is.
+TEST(ParticleIo, NonRegularFilesAreRefused) {
+  const auto fifo = scratch("fifo.csv");
+  std::filesystem::remove(fifo);
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  EXPECT_EQ(message_of(fifo, 3), "particle file = '" + fifo.string() + "': is not a regular file (a FIFO)");
+  const auto zero = scratch("zero.vtp");
+  std::filesystem::remove(zero);
+  std::filesystem::create_symlink("/dev/zero", zero);
+  EXPECT_EQ(message_of(zero, 3), "particle file = '" + zero.string() + "': is not a regular file (a device)");
+  std::filesystem::remove(fifo);
+  std::filesystem::remove(zero);
 }

@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <limits>
+
 #include <string>
 #include <vector>
 
@@ -83,6 +85,27 @@ TEST(ParticleSet, AddWithIdRejectsNegativeAndDuplicateIds) {
   EXPECT_EQ(ps.next_id(), 5) << "a rejected particle leaves the counter";
   ps.remove(0);
   EXPECT_EQ(ps.add_with_id(4, Vec3::Zero(), 1.0, 1.0), 4) << "a removed id may be restored";
+}
+
+// Ids leave room for the counter: id + 1 (next_id) and every later add() must
+// not overflow, so ids above kMaxParticleId (2^62) are refused with one line.
+TEST(ParticleSet, IdsNearTwoToThe63AreRefused) {
+  ParticleSet ps(3);
+  for (const ParticleId id : {std::numeric_limits<ParticleId>::max(), std::numeric_limits<ParticleId>::max() - 1,
+                              kMaxParticleId + 1}) {
+    try {
+      ps.add_with_id(id, Vec3::Zero(), 1.0, 1.0);
+      ADD_FAILURE() << "id " << id << " accepted";
+    } catch (const InvalidArgument& e) {
+      EXPECT_EQ(std::string(e.what()), "particle id = '" + std::to_string(id) + "': must be <= 2^62 = " +
+                                           std::to_string(kMaxParticleId));
+    }
+    EXPECT_THROW(ps.set_next_id(id + (id == std::numeric_limits<ParticleId>::max() ? 0 : 1)), InvalidArgument);
+  }
+  EXPECT_EQ(ps.size(), 0u);
+  EXPECT_EQ(ps.add_with_id(kMaxParticleId, Vec3::Zero(), 1.0, 1.0), kMaxParticleId);
+  EXPECT_EQ(ps.next_id(), kMaxParticleId + 1);
+  EXPECT_EQ(ps.add(Vec3::Zero(), 1.0, 1.0), kMaxParticleId + 1) << "the counter goes on past the largest id";
 }
 
 TEST(ParticleSet, SetNextIdMustExceedEveryPresentId) {

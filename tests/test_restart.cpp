@@ -1,10 +1,13 @@
 // Restart (checkpoints, --resume, interruption) and runs that start from a
 // particle file (particles.fill = "file").
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <map>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -105,6 +108,27 @@ TEST(Restart, FinishedRunExtendsToTheSameSeries) {
   fs::remove_all(part);
 }
 
+// A resumed run keeps the step of the run it continues: with dt from
+// run.dt_factor (dt0 = 0.1 dr^2 = 0.007368 here) a run to t_end = 0.0075
+// takes 2 steps of 0.00375; extended to 0.0225 it goes on with 4 steps of
+// 0.00375 (not 3 of 0.005, which the raw dt0 gives).
+TEST(Restart, ExtendedRunKeepsItsStep) {
+  const fs::path dir = fresh_dir("extend_dt");
+  const std::string config = (kExamples / "free_space_heat.toml").string();
+  std::string err;
+  ASSERT_EQ(cli({"run", config, "--out", dir.string(), "--quiet", "--set", "run.t_end=0.0075"}, err), 0) << err;
+  auto rows = otfp::test::read_csv(dir / "series.csv");
+  ASSERT_EQ(rows.size(), 3u);
+  const double dt = std::stod(rows[1].at("dt"));
+  EXPECT_EQ(dt, 0.0075 / 2);
+  ASSERT_EQ(cli({"run", "--resume", dir.string(), "--quiet", "--set", "run.t_end=0.0225"}, err), 0) << err;
+  rows = otfp::test::read_csv(dir / "series.csv");
+  ASSERT_EQ(rows.size(), 7u) << "4 more steps of the run's dt";
+  for (std::size_t k = 3; k < rows.size(); ++k) EXPECT_NEAR(std::stod(rows[k].at("dt")), dt, 1e-15 * dt) << k;
+  EXPECT_EQ(std::stod(rows.back().at("t")), 0.0225);
+  fs::remove_all(dir);
+}
+
 // A run killed between checkpoints has rows after its last checkpoint: the
 // resumed run takes them again from the checkpoint, so the series is still
 // the uninterrupted one (no duplicate, no missing row).
@@ -123,6 +147,106 @@ TEST(Restart, RowsAfterTheLastCheckpointAreTakenAgain) {
   EXPECT_EQ(read_text(full / "series.csv"), read_text(cut / "series.csv"));
   fs::remove_all(full);
   fs::remove_all(cut);
+}
+
+// A checkpoint of the state at step 0 (no stepper history; every byte but a
+// few hundred is particle records) loads back into a Simulation built from
+// the same configuration, for both steppers: the particle records are 56
+// bytes, and a count bound of one record per 64 bytes refused them.
+TEST(Restart, StepZeroCheckpointRoundTrips) {
+  for (const std::string stepper : {"implicit", "explicit"}) {
+    SCOPED_TRACE(stepper);
+    const ConfiguredRun run(parse_config_file(kExamples / "free_space_heat.toml", {"solver.stepper=" + stepper}));
+    const auto a = run.make_simulation();
+    ASSERT_EQ(a->particles().size(), 400u);
+    const fs::path file = fresh_dir("step0_" + stepper);
+    a->save_checkpoint(file, "extra");
+    const auto b = run.make_simulation();
+    b->advance(run.derived().dt);  // a different state, which the load replaces
+    std::string extra;
+    ASSERT_NO_THROW(b->load_checkpoint(file, &extra));
+    EXPECT_EQ(extra, "extra");
+    EXPECT_EQ(b->step_count(), 0);
+    EXPECT_EQ(b->time(), 0.0);
+    EXPECT_EQ(b->particles().positions(), a->particles().positions());
+    EXPECT_EQ(b->particles().ids(), a->particles().ids());
+    EXPECT_EQ(b->particles().next_id(), a->particles().next_id());
+    // And both continue alike.
+    a->advance(run.derived().dt);
+    b->advance(run.derived().dt);
+    EXPECT_EQ(b->particles().positions(), a->particles().positions());
+    fs::remove(file);
+  }
+}
+
+// The library refuses a checkpoint of another setup (here rho_ref) naming the
+// field, whatever its caller does; options a caller may change (the
+// particle limit) do not matter. checkpoint_extra() reads the caller's data
+// alone.
+TEST(Restart, LibraryRefusesACheckpointOfAnotherSetup) {
+  const ConfiguredRun one(parse_config_file(kExamples / "free_space_heat.toml", {"run.max_particles=5000"}));
+  const ConfiguredRun two(parse_config_file(kExamples / "free_space_heat.toml", {"physics.rho_ref=2"}));
+  const ConfiguredRun three(parse_config_file(kExamples / "free_space_heat.toml", {"run.max_particles=7000"}));
+  const auto a = one.make_simulation();
+  a->advance(one.derived().dt);
+  const fs::path file = fresh_dir("setup_ckpt");
+  a->save_checkpoint(file, "mine");
+  EXPECT_EQ(otfp::Simulation::checkpoint_extra(file), "mine");
+  const auto b = two.make_simulation();
+  try {
+    b->load_checkpoint(file);
+    ADD_FAILURE() << "a checkpoint of rho_ref = 1 loaded into rho_ref = 2";
+  } catch (const otfp::InvalidArgument& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("implicit.rho_ref = 1 in the file, 2 here"), std::string::npos) << msg;
+    EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+  }
+  EXPECT_EQ(b->step_count(), 0) << "state kept";
+  const auto c = three.make_simulation();
+  EXPECT_NO_THROW(c->load_checkpoint(file));
+  EXPECT_EQ(c->step_count(), 1);
+  fs::remove(file);
+}
+
+// load_checkpoint on a FIFO (blocks) or a device (never ends) refuses at once.
+TEST(Restart, CheckpointMustBeARegularFile) {
+  const ConfiguredRun run(parse_config_file(kExamples / "free_space_heat.toml", {}));
+  const auto sim = run.make_simulation();
+  const fs::path fifo = fresh_dir("ckpt_fifo");
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  for (const fs::path& path : {fs::path("/dev/zero"), fifo, fs::temp_directory_path()}) {
+    try {
+      sim->load_checkpoint(path);
+      ADD_FAILURE() << path;
+    } catch (const otfp::InvalidArgument& e) {
+      EXPECT_NE(std::string(e.what()).find("not a regular file"), std::string::npos) << e.what();
+    }
+    EXPECT_THROW(otfp::Simulation::checkpoint_extra(path), otfp::InvalidArgument);
+  }
+  fs::remove(fifo);
+}
+
+// An explicit-stepper run's checkpoint resumes through the CLI, and the
+// resumed series equals the run made at once.
+TEST(Restart, ExplicitRunResumes) {
+  const fs::path full = fresh_dir("explicit_full"), part = fresh_dir("explicit_part");
+  const std::string config = (kExamples / "free_space_heat.toml").string();
+  std::string err;
+  ASSERT_EQ(cli({"run", config, "--out", full.string(), "--quiet", "--set", "solver.stepper=explicit", "--set",
+                 "run.max_steps=6"},
+                err),
+            0)
+      << err;
+  ASSERT_EQ(cli({"run", config, "--out", part.string(), "--quiet", "--set", "solver.stepper=explicit", "--set",
+                 "run.max_steps=3"},
+                err),
+            0)
+      << err;
+  ASSERT_EQ(cli({"run", "--resume", part.string(), "--quiet", "--set", "run.max_steps=6"}, err), 0) << err;
+  EXPECT_EQ(read_text(full / "series.csv"), read_text(part / "series.csv"));
+  EXPECT_EQ(read_text(full / "particles_final.csv"), read_text(part / "particles_final.csv"));
+  fs::remove_all(full);
+  fs::remove_all(part);
 }
 
 // --resume refuses, with one line and exit code 2, what it cannot continue.
@@ -145,16 +269,119 @@ TEST(Restart, ResumeRefusesWhatItCannotContinue) {
     EXPECT_EQ(err.rfind(b.starts, 0), 0u) << err;
     EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
   }
-  // A damaged checkpoint: the run fails (exit 1) naming the file.
-  {
-    std::string bytes = read_text(dir / "checkpoint.bin");
-    bytes[bytes.size() / 2] ^= 0x01;
-    std::ofstream f(dir / "checkpoint.bin", std::ios::binary | std::ios::trunc);
-    f << bytes;
-  }
-  EXPECT_EQ(cli({"run", "--resume", dir.string(), "--quiet", "--set", "run.t_end=0.02"}, err), 1);
-  EXPECT_NE(err.find("checksum"), std::string::npos) << err;
+  // The refusal of a --set lists every key a resume may change.
+  cli(bad[0].args, err);
+  for (const std::string& key : resume_keys()) EXPECT_NE(err.find(key), std::string::npos) << key << " in " << err;
   fs::remove_all(dir);
+}
+
+namespace {
+
+// Every file of a directory and its bytes.
+std::map<std::string, std::string> files_of(const fs::path& dir) {
+  std::map<std::string, std::string> out;
+  for (const fs::directory_entry& e : fs::directory_iterator(dir)) out[e.path().filename().string()] = read_text(e.path());
+  return out;
+}
+
+void rewrite(const fs::path& file, const std::string& bytes) {
+  std::ofstream f(file, std::ios::binary | std::ios::trunc);
+  f << bytes;
+}
+
+}  // namespace
+
+// A resume that cannot continue the run is refused before anything is
+// written: the directory stays byte for byte as it was (no summary.json
+// rewritten as "failed", no particles_failed.vtp), exit code 2, one line
+// naming the file and what is wrong with it.
+TEST(Restart, RefusedResumeLeavesTheRunUntouched) {
+  const fs::path dir = fresh_dir("resume_untouched");
+  ASSERT_EQ(run_config(small_sphere(3, false), dir).exit_code, 0);
+  const std::map<std::string, std::string> pristine = files_of(dir);
+  const std::string ckpt = pristine.at("checkpoint.bin"), series = pristine.at("series.csv");
+  struct Case {
+    std::string what;
+    std::function<void()> damage;
+    std::string t_end;
+    std::vector<std::string> mentions;
+  };
+  const std::string later = "run.t_end=" + std::to_string(6 * 0.00390625);
+  const std::vector<Case> cases = {
+      {"truncated checkpoint", [&] { rewrite(dir / "checkpoint.bin", ckpt.substr(0, ckpt.size() - 100)); }, later,
+       {"checkpoint.bin", "checksum"}},
+      {"flipped bit", [&] { std::string b = ckpt; b[b.size() / 2] ^= 0x01; rewrite(dir / "checkpoint.bin", b); },
+       later, {"checkpoint.bin", "checksum"}},
+      {"t_end before the checkpoint", [] {}, "run.t_end=0.005", {"run.t_end = 0.005", "checkpoint.bin", "t = "}},
+      {"garbage row in series.csv",
+       [&] { rewrite(dir / "series.csv", series.substr(0, series.find('\n') + 1) + "garbage\n" +
+                                          series.substr(series.find('\n') + 1)); },
+       later, {"series.csv", "line 2"}},
+      {"garbage row at the end of series.csv", [&] { rewrite(dir / "series.csv", series + "1,2\n"); }, later,
+       {"series.csv", "line " + std::to_string(std::count(series.begin(), series.end(), '\n') + 1)}},
+      {"rows missing in series.csv", [&] { rewrite(dir / "series.csv", series.substr(0, series.rfind('\n', series.size() - 2) + 1)); },
+       later, {"series.csv", "before the checkpoint's step"}},
+      {"missing series.csv", [&] { fs::remove(dir / "series.csv"); }, later, {"series.csv"}},
+      {"missing timing.csv", [&] { fs::remove(dir / "timing.csv"); }, later, {"timing.csv"}},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.what);
+    for (const auto& [name, bytes] : pristine) rewrite(dir / name, bytes);
+    c.damage();
+    const std::map<std::string, std::string> before = files_of(dir);
+    std::string err;
+    EXPECT_EQ(cli({"run", "--resume", dir.string(), "--quiet", "--set", c.t_end}, err), 2) << err;
+    EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+    EXPECT_EQ(err.rfind("otfp: error: ", 0), 0u) << err;
+    for (const std::string& m : c.mentions) EXPECT_NE(err.find(m), std::string::npos) << m << " in " << err;
+    EXPECT_TRUE(files_of(dir) == before) << "the run's directory changed";
+  }
+  // Put back, the run continues.
+  for (const auto& [name, bytes] : pristine) rewrite(dir / name, bytes);
+  std::string err;
+  EXPECT_EQ(cli({"run", "--resume", dir.string(), "--quiet", "--set", later}, err), 0) << err;
+  fs::remove_all(dir);
+}
+
+// A checkpoint carries the resolved configuration it was written with; a
+// resume whose configuration differs in any key a resume may not change (a
+// foreign checkpoint of the same dimension and patch count, or an edited
+// DIR/config.toml) is refused naming the key, and changes nothing.
+TEST(Restart, ResumeRefusesAnotherConfiguration) {
+  const fs::path a = fresh_dir("fingerprint_a"), b = fresh_dir("fingerprint_b");
+  ASSERT_EQ(run_config({"particles.n_inf=120", "run.max_steps=2"}, a).exit_code, 0);
+  ASSERT_EQ(run_config({"particles.n_inf=150", "run.max_steps=2"}, b).exit_code, 0);
+  const std::map<std::string, std::string> pristine = files_of(b);
+  fs::copy_file(a / "checkpoint.bin", b / "checkpoint.bin", fs::copy_options::overwrite_existing);
+  std::map<std::string, std::string> before = files_of(b);
+  std::string err;
+  EXPECT_EQ(cli({"run", "--resume", b.string(), "--quiet", "--set", "run.max_steps=4"}, err), 2) << err;
+  EXPECT_NE(err.find("particles.n_inf = 150"), std::string::npos) << err;
+  EXPECT_NE(err.find("120"), std::string::npos) << err;
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+  EXPECT_TRUE(files_of(b) == before);
+
+  // kappa edited in DIR/config.toml.
+  for (const auto& [name, bytes] : pristine) rewrite(b / name, bytes);
+  std::string toml = pristine.at("config.toml");
+  const std::size_t at = toml.find("kappa = 1");
+  ASSERT_NE(at, std::string::npos) << toml;
+  rewrite(b / "config.toml", toml.replace(at, 9, "kappa = 2"));
+  before = files_of(b);
+  EXPECT_EQ(cli({"run", "--resume", b.string(), "--quiet", "--set", "run.max_steps=4"}, err), 2) << err;
+  EXPECT_NE(err.find("physics.kappa = 2"), std::string::npos) << err;
+  EXPECT_NE(err.find("config.toml"), std::string::npos) << err;
+  EXPECT_TRUE(files_of(b) == before);
+
+  // Unchanged, with keys a resume may change, it continues.
+  for (const auto& [name, bytes] : pristine) rewrite(b / name, bytes);
+  EXPECT_EQ(cli({"run", "--resume", b.string(), "--quiet", "--set", "run.max_steps=4", "--set", "run.threads=2",
+                 "--set", "run.max_particles=100000"},
+                err),
+            0)
+      << err;
+  fs::remove_all(a);
+  fs::remove_all(b);
 }
 
 // particles.fill = "file": a run starts from another run's final particles

@@ -144,3 +144,28 @@ TEST(Sweep, RejectsUnknownKeysAndBadOptionsBeforeRunning) {
   EXPECT_THROW(run_sweep(o, err), ConfigError);
   EXPECT_FALSE(fs::exists(o.out_dir));
 }
+
+// A grid of more runs than run_NNNN names (10^4) is refused with one line
+// before it is built (three axes of 300 values asked for 2.7e7 rows and
+// ended in bad_alloc).
+TEST(Sweep, GridSizeIsCapped) {
+  std::string values;
+  for (int i = 0; i < 300; ++i) {
+    if (i > 0) values += ',';
+    values += std::to_string(i + 1);
+  }
+  const std::vector<SweepAxis> axes = {parse_vary("run.seed=" + values), parse_vary("particles.n_inf=" + values),
+                                       parse_vary("run.max_steps=" + values)};
+  try {
+    expand_grid(axes);
+    ADD_FAILURE() << "a grid of 2.7e7 runs was built";
+  } catch (const ConfigError& e) {
+    EXPECT_EQ(e.key(), "--vary");
+    EXPECT_STREQ(e.what(), "--vary = 300 x 300 x 300 = 27000000 runs: must give at most 10000 runs");
+  }
+  EXPECT_EQ(expand_grid({parse_vary("run.seed=" + values)}).size(), 300u);
+  std::ostringstream err;
+  SweepOptions o = options("sweep_huge", {"run.seed=" + values, "particles.n_inf=" + values, "run.max_steps=" + values});
+  EXPECT_THROW(run_sweep(o, err), ConfigError);
+  EXPECT_FALSE(fs::exists(o.out_dir));
+}

@@ -10,6 +10,10 @@
 namespace otfp {
 
 using ParticleId = std::int64_t;
+// The largest id add_with_id() and set_next_id() take (2^62): ids given from
+// outside (a file, a checkpoint) leave 2^62 more add() calls before the
+// counter could overflow.
+constexpr ParticleId kMaxParticleId = ParticleId{1} << 62;
 
 // Permutation that sorts points by the cell of a grid of the given cell size
 // (z-major, then y, then x), so that neighbours end up close in memory.
@@ -33,8 +37,9 @@ class ParticleSet {
   // Appends a particle and returns its new id.
   ParticleId add(const Vec3& x, double width_s, double mass, double birth_time = 0.0);
   // Appends a particle with a given id (restoring a checkpoint); returns it.
-  // Throws InvalidArgument if id < 0 or already present; next_id() becomes
-  // max(next_id(), id + 1), so later add() calls never reuse it.
+  // Throws InvalidArgument if id < 0, id > kMaxParticleId or already
+  // present; next_id() becomes max(next_id(), id + 1), so later add() calls
+  // never reuse it.
   ParticleId add_with_id(ParticleId id, const Vec3& x, double width_s, double mass, double birth_time = 0.0);
   // Removes the particle at `index`; the last particle takes its index.
   void remove(std::size_t index);
@@ -62,8 +67,8 @@ class ParticleSet {
   double total_mass() const;
   ParticleId next_id() const { return next_id_; }
   // Sets the id the next add() gives (a checkpoint's counter, which may be
-  // past the largest id present). Throws InvalidArgument unless next >= 0 and
-  // next > every id present.
+  // past the largest id present). Throws InvalidArgument unless 0 <= next <=
+  // kMaxParticleId + 1 and next > every id present.
   void set_next_id(ParticleId next);
 
   // Reorders the particles: new index i holds the particle that had index order[i].
@@ -83,6 +88,8 @@ class ParticleSet {
   void assign_in_place(const ParticleSet& other);
 
  private:
+  // add() and add_with_id() after their own checks of the id.
+  ParticleId insert(ParticleId id, const Vec3& x, double width_s, double mass, double birth_time);
   int dim_;
   std::vector<Vec3> x_;
   std::vector<double> s_, m_, birth_;

@@ -203,11 +203,20 @@ class Simulation {
   // random numbers, the ledger and totals, the projection's carries and
   // deficits, the implicit stepper's history and the time and step; `extra`
   // is kept for the caller (e.g. its own diagnostics). The file is written
-  // atomically (a temporary file renamed over `path`). load_checkpoint()
-  // needs a Simulation built from the same domain, data and options; it
-  // throws InvalidArgument (state unchanged) for a damaged or foreign file.
+  // atomically (a temporary file renamed over `path`). It also records the
+  // setup: the domain (dimension, patches, volume, bounding box, patch
+  // areas), the boundary data and the options that give the state its
+  // meaning (particle mass, width, barrier, boundary treatment, stepper,
+  // kappa, rho_ref, scheme, velocity, source); load_checkpoint() refuses a
+  // file of another setup naming the first field that differs (the resource
+  // limit, the adaptive controller, solver tolerances and the seed may
+  // differ). It throws InvalidArgument (state unchanged) for a damaged,
+  // truncated or foreign file, and for a path that is not a regular file.
   void save_checkpoint(const std::filesystem::path& path, const std::string& extra = {}) const;
   void load_checkpoint(const std::filesystem::path& path, std::string* extra = nullptr);
+  // The caller's `extra` of a checkpoint file (checked as load_checkpoint
+  // checks it, but not loaded): a caller can check its own data first.
+  static std::string checkpoint_extra(const std::filesystem::path& path);
 
  private:
   struct Undo;

@@ -1,12 +1,14 @@
 #include "otfp_app/cli.hpp"
 
 #include <fcntl.h>
+#include <sys/prctl.h>
 #include <sys/file.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
 #include <cerrno>
 #include <csignal>
+#include <cstdlib>
 #include <cstring>
 
 #include <CLI/CLI.hpp>
@@ -97,10 +99,6 @@ struct SweepSignals {
   SweepSignals& operator=(const SweepSignals&) = delete;
 };
 
-// The keys a resumed run may change: where it ends and how it writes.
-const char* const kResumeKeys[] = {"run.t_end", "run.max_steps", "run.vtk_interval", "run.checkpoint_interval",
-                                   "run.threads", "run.max_particles"};
-
 // Control characters of user text as escapes (one-line messages).
 std::string escaped(const std::string& s) {
   std::string out;
@@ -114,9 +112,39 @@ std::string escaped(const std::string& s) {
   return out;
 }
 
+// One line: control characters anywhere in the message (a path with a
+// newline, say) are escaped.
 int error(std::ostream& err, const std::string& message, int code) {
-  err << "otfp: error: " << message << "\n";
+  err << "otfp: error: " << escaped(message) << "\n";
   return code;
+}
+
+// Levenshtein distance, for "did you mean" hints.
+std::size_t edit_distance(const std::string& a, const std::string& b) {
+  std::vector<std::size_t> row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t diag = row[0];
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t up = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diag + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      diag = up;
+    }
+  }
+  return row[b.size()];
+}
+
+// The nearest of `names` to `word` if it is close (at most 2 edits, or a third of its length), else "".
+std::string nearest(const std::string& word, const std::vector<std::string>& names) {
+  std::string best;
+  std::size_t best_d = std::max<std::size_t>(2, word.size() / 3) + 1;
+  for (const std::string& n : names)
+    if (const std::size_t d = edit_distance(word, n); d < best_d) {
+      best = n;
+      best_d = d;
+    }
+  return best;
 }
 
 // Parses and checks everything; nullptr after printing the error.
@@ -254,10 +282,15 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   bool quiet = false, overwrite = false;
 
   CLI::App* run = app.add_subcommand("run", "run a simulation and write its outputs");
-  run->add_option("config", config, "configuration file (TOML)");
-  run->add_option("--out,-o", out_dir, "output directory (created if missing)");
+  run->add_option("config", config, "configuration file (TOML)")->type_name("CONFIG");
+  run->add_option("--out,-o", out_dir, "output directory (created if missing)")->type_name("DIR");
   run->add_option("--resume", resume_dir,
-                  "continue the run in DIR from its checkpoint (e.g. --set run.t_end=LATER to extend a finished run)");
+                  "continue the run in DIR from its checkpoint (e.g. --set run.t_end=LATER to extend a finished run)")
+      ->type_name("DIR");
+  run->footer(
+      "Exit codes: 0 completed; 1 the run failed (the files are complete up to the last good step); 2 bad input "
+      "(configuration, paths, --set, a --resume that cannot continue; nothing is written); 3 interrupted by "
+      "SIGINT/SIGTERM (checkpoint written; continue with otfp run --resume DIR).");
   run->add_option("--set,-s", sets, "override a key by dotted path, e.g. particles.n_inf=3200 (repeatable)")
       ->allow_extra_args(false)
       ->take_all();
@@ -286,6 +319,15 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   sweep->add_option("--set,-s", sets, "override a key in every run (repeatable)")->allow_extra_args(false)->take_all();
   sweep->add_flag("--quiet,-q", quiet, "print nothing but errors");
 
+  // A misspelt command: CLI11 would only say that one is required.
+  const std::vector<std::string> commands = {"run", "check", "sweep"};
+  if (argc > 1 && argv[1][0] != '-' && std::find(commands.begin(), commands.end(), argv[1]) == commands.end()) {
+    const std::string near = nearest(argv[1], commands);
+    return error(err,
+                 std::string("unknown command '") + argv[1] + "' (" + (near.empty() ? "" : "did you mean '" + near + "'? ") +
+                     "commands: run, check, sweep)",
+                 kUsage);
+  }
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -295,7 +337,22 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   } catch (const CLI::CallForVersion& e) {
     return app.exit(e, out, err);
   } catch (const CLI::ParseError& e) {
-    return error(err, std::string(e.what()) + " (try --help)", kUsage);
+    // An unknown option: name the nearest option of its command.
+    std::string hint;
+    const std::string first = argc > 1 ? argv[1] : "";
+    CLI::App* sub = first == "run" ? run : first == "check" ? check : first == "sweep" ? sweep : nullptr;
+    if (sub) {
+      std::vector<std::string> options;
+      for (const CLI::Option* o : sub->get_options())
+        for (const std::string& n : o->get_lnames()) options.push_back("--" + n);
+      for (int i = 2; i < argc && hint.empty(); ++i) {
+        const std::string arg = std::string(argv[i]).substr(0, std::string(argv[i]).find('='));
+        if (arg.rfind("--", 0) != 0 || std::find(options.begin(), options.end(), arg) != options.end()) continue;
+        if (const std::string near = nearest(arg, options); !near.empty())
+          hint = " (unknown option " + arg + ": did you mean " + near + "?)";
+      }
+    }
+    return error(err, std::string(e.what()) + hint + " (try --help)", kUsage);
   }
 
   if (sweep->parsed()) {
@@ -318,12 +375,14 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
         r = run_sweep(so, err);
       }
       if (r.interrupted) {
+        // Asked for: a notice, not an error.
         int finished = 0;
         for (const SweepRow& row : r.rows) finished += row.status == "completed" ? 1 : 0;
-        return error(err,
-                     fmt::format("sweep interrupted by a signal: {} of its runs completed -> {}/runs.csv", finished,
-                                 out_dir),
-                     kExitInterrupted);
+        err << "otfp: "
+            << escaped(fmt::format("sweep interrupted by a signal: {} of its runs completed -> {}/runs.csv", finished,
+                                   out_dir))
+            << "\n";
+        return kExitInterrupted;
       }
       if (!quiet)
         err << fmt::format("otfp: sweep of {} runs, {} not completed -> {}/runs.csv\n", r.rows.size(), r.failed,
@@ -354,24 +413,38 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
                      kUsage);
       for (const std::string& set : sets) {
         const std::string key = set.substr(0, set.find('='));
-        bool allowed = false;
-        for (const char* k : kResumeKeys) allowed = allowed || key == k;
-        if (!allowed)
-          return error(err,
-                       "--set " + escaped(set) +
-                           ": cannot change on --resume (only run.t_end, run.max_steps, run.vtk_interval, "
-                           "run.checkpoint_interval, run.threads)",
-                       kUsage);
+        const std::vector<std::string>& keys = resume_keys();
+        if (std::find(keys.begin(), keys.end(), key) == keys.end()) {
+          std::string list;
+          for (const std::string& k : keys) list += (list.empty() ? "" : ", ") + k;
+          return error(err, "--set " + escaped(set) + ": cannot change on --resume (only " + list + ")", kUsage);
+        }
       }
       config = (std::filesystem::path(resume_dir) / "config.toml").string();
       out_dir = resume_dir;
     } else if (run->count("--out") > 0 && out_dir.empty()) {
       return error(err, "--out = \"\": must be a non-empty path", kUsage);
     } else if (config.empty() || out_dir.empty()) {
+      // CONFIG first: a missing or bad file is the first thing to fix.
+      if (!config.empty()) {
+        int code = 0;
+        if (!load(config, sets, err, code)) return code;
+      }
       return error(err, std::string(config.empty() ? "CONFIG" : "--out") + " is required (or --resume DIR) (try --help)",
                    kUsage);
     }
   }
+
+  // A run started by `otfp sweep`: SIGTERM (stop after the step, checkpoint)
+  // when the sweep dies, even by SIGKILL; if it is already gone, stop now.
+  if (run->parsed())
+    if (const char* sweep_pid = std::getenv("OTFP_SWEEP_PID")) {
+      ::prctl(PR_SET_PDEATHSIG, SIGTERM);
+      if (std::to_string(::getppid()) != sweep_pid) {
+        err << "otfp: the sweep that started this run (pid " << escaped(sweep_pid) << ") is gone; not started\n";
+        return kExitInterrupted;
+      }
+    }
 
   int code = 0;
   std::unique_ptr<ConfiguredRun> sim = load(config, sets, err, code);
@@ -397,9 +470,9 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   // library's checkpoint temporary file and the lock.
   set_kill_time_paths({dir / fmt::format("checkpoint.bin.tmp{}", ::getpid()), dir / ".otfp.lock"});
   fmt::format_to_n(g_kill_message, sizeof g_kill_message - 1,
-                   "otfp: error: stopped by a second signal during a step; continue from the last checkpoint with: "
+                   "otfp: stopped by a second signal during a step; continue from the last checkpoint with: "
                    "otfp run --resume {}\n",
-                   out_dir);
+                   escaped(out_dir));
   RunResult r;
   {
     const StopSignals signals;
@@ -409,10 +482,16 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   if (r.nothing_to_do) {
     if (!quiet)
       err << fmt::format("otfp: {} is already at step {}, t = {}: nothing to do (extend it with --set run.t_end=...)\n",
-                         out_dir, r.last.step, r.last.t);
+                         escaped(out_dir), r.last.step, r.last.t);
     return 0;
   }
-  if (r.exit_code == kExitInterrupted) return error(err, r.error, kExitInterrupted);
+  if (r.exit_code == kExitInterrupted) {
+    // Asked for (SIGINT/SIGTERM): a notice, not an error.
+    err << "otfp: " << escaped(r.error) << "\n";
+    return kExitInterrupted;
+  }
+  if (r.exit_code == kExitRefused)
+    return error(err, "--resume = \"" + escaped(out_dir) + "\": " + r.error + " (nothing in it was changed)", kUsage);
   if (r.exit_code != 0)
     return error(err,
                  r.rows ? fmt::format("{} (the files in {} are complete up to step {}, t = {})", r.error, out_dir,
@@ -421,7 +500,7 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
                  kRunFailed);
   if (!quiet)
     err << fmt::format("otfp: {} steps to t = {}: n = {}, M/M_inf = {:.4f}, {:.1f} s -> {}\n", r.last.step, r.last.t,
-                       r.last.n_particles, r.last.mass_ratio, r.summary.value("wall_seconds", 0.0), out_dir);
+                       r.last.n_particles, r.last.mass_ratio, r.summary.value("wall_seconds", 0.0), escaped(out_dir));
   return 0;
 }
 

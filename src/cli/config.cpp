@@ -358,7 +358,7 @@ const std::vector<Field>& fields() {
         key("run.max_steps", &RunSection::max_steps).with(at_least(0)),
         key("run.dt_mode", &RunSection::dt_mode).one_of({"fixed", "adaptive"}),
         key("run.time_tolerance", &RunSection::time_tolerance).with(greater(0)),
-        key("run.dt_min", &RunSection::dt_min).with(at_least(0)),
+        key("run.dt_min", &RunSection::dt_min).with(greater(0)),
         key("run.dt_max", &RunSection::dt_max).with(greater(0)),
         key("run.vtk_interval", &RunSection::vtk_interval).with(at_least(0)),
         key("run.checkpoint_interval", &RunSection::checkpoint_interval).with(at_least(0)),
@@ -947,6 +947,11 @@ void validate(const Config& c) {
   check_rules(c);
 
   const RunSection& r = c.run;
+  // A floor a tiny tolerance can reach: more than 1e9 steps, and t + dt_min
+  // may not advance t at all (exit 1 "dt = 0" after the files were written).
+  if (r.dt_min && !(*r.dt_min >= 1e-9 * r.t_end))
+    throw ConfigError("run.dt_min", shown(*r.dt_min),
+                      fmt::format("must be >= 1e-9 x run.t_end = {} (at most 1e9 steps)", shown(1e-9 * r.t_end)));
   if (r.dt_min && r.dt_max && *r.dt_max < *r.dt_min)
     throw ConfigError("run.dt_max", shown(*r.dt_max), fmt::format("must be >= run.dt_min = {}", shown(*r.dt_min)));
   if (r.dt_mode == "adaptive" && c.solver.stepper != "implicit")
@@ -987,9 +992,18 @@ void validate(const Config& c) {
   if (pa.fill != "file" && pa.fill_file)
     throw ConfigError("particles.fill_file", quoted(*pa.fill_file),
                       "needs particles.fill = \"file\" (particles.fill = " + quoted(pa.fill) + ")");
-  if (pa.fill_file && !fs::is_regular_file(*pa.fill_file))
+  if (pa.fill_file && !fs::is_regular_file(*pa.fill_file)) {
+    std::error_code ec;
+    const fs::file_status st = fs::status(*pa.fill_file, ec);
+    const std::string what = !fs::exists(st)                                       ? ""
+                             : fs::is_directory(st)                                 ? "a directory"
+                             : fs::is_fifo(st)                                      ? "a FIFO"
+                             : fs::is_character_file(st) || fs::is_block_file(st) ? "a device"
+                                                                                    : "not a regular file";
     throw ConfigError("particles.fill_file", quoted(*pa.fill_file),
-                      "no such file (a relative path is taken from the configuration file's directory)");
+                      what.empty() ? "no such file (a relative path is taken from the configuration file's directory)"
+                                   : "is " + what + ", not a particle file (.csv or .vtp)");
+  }
   if (pa.fill_count && pa.fill_mass)
     throw ConfigError("particles.fill_count", std::to_string(*pa.fill_count),
                       "give either particles.fill_count or particles.fill_mass, not both");
@@ -1232,6 +1246,31 @@ nlohmann::json config_to_json(const Config& c) {
       }
     }
   return j;
+}
+
+const std::vector<std::string>& resume_keys() {
+  static const std::vector<std::string> keys = {"run.t_end",   "run.max_steps", "run.vtk_interval",
+                                                "run.checkpoint_interval", "run.threads", "run.max_particles"};
+  return keys;
+}
+
+namespace {
+void flatten(const nlohmann::json& j, const std::string& path, std::map<std::string, std::string>& out) {
+  if (j.is_object()) {
+    for (const auto& [k, v] : j.items()) flatten(v, path.empty() ? k : path + "." + k, out);
+  } else if (j.is_array() && !j.empty() && j.front().is_object()) {  // arrays of tables; points stay values
+    for (std::size_t i = 0; i < j.size(); ++i) flatten(j[i], path + "[" + std::to_string(i) + "]", out);
+  } else {
+    out[path] = j.dump();
+  }
+}
+}  // namespace
+
+std::map<std::string, std::string> config_fingerprint(const Config& config) {
+  std::map<std::string, std::string> out;
+  flatten(config_to_json(parse_config_string(to_toml(config), {}, config.source)), "", out);
+  for (const std::string& k : resume_keys()) out.erase(k);
+  return out;
 }
 
 }  // namespace otfp::app

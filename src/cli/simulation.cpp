@@ -4,8 +4,10 @@
 #include <unistd.h>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
+#include <charconv>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -14,6 +16,7 @@
 #include <fstream>
 #include <iostream>
 #include <limits>
+#include <map>
 #include <numbers>
 #include <optional>
 
@@ -48,6 +51,7 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 constexpr double kPi = std::numbers::pi;
+const std::string kTimingHeader = "step,t,wall_seconds,step_seconds,solver_seconds,list_seconds\n";
 
 // A failure while stepping: exit code 1, files kept.
 class RunError : public std::runtime_error {
@@ -170,16 +174,54 @@ L1Norms l1_from_state(const nlohmann::json& j) {
   return l;
 }
 
-// The lines of a CSV file whose first field (the step) is <= k, header kept.
-std::string csv_up_to_step(const std::filesystem::path& file, std::int64_t k) {
-  std::ifstream f(file);
-  if (!f) throw RunError("cannot read " + file.string() + " to resume");
+// A resume that cannot continue the run: refused before any file is
+// touched (exit code 2; RunResult::exit_code kExitRefused).
+class ResumeRefused : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// The lines of a run's CSV file (series.csv, timing.csv) up to step k, header
+// kept, for a resume to continue. Checked first, so that a resume never
+// rewrites a file it cannot read: the header must be the one this
+// configuration writes, every row must hold as many fields as the header and
+// start with the step, one more than the row before (from step 0), and the
+// rows must reach step k (rows after it, of a run killed between
+// checkpoints, are dropped).
+std::string csv_up_to_step(const std::filesystem::path& file, const std::string& header, std::int64_t k) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(file, ec))
+    throw ResumeRefused(fmt::format("{}: {}", file.string(),
+                                    std::filesystem::exists(file, ec) ? "not a regular file" : "missing"));
+  std::ifstream f(file, std::ios::binary);
+  if (!f) throw ResumeRefused(file.string() + ": cannot read");
+  const auto fields = [](const std::string& line) { return std::count(line.begin(), line.end(), ',') + 1; };
   std::string line, text;
-  bool header = true;
+  std::int64_t line_no = 0, last_step = -1;
   while (std::getline(f, line)) {
-    if (header || (!line.empty() && std::stoll(line.substr(0, line.find(','))) <= k)) text += line + "\n";
-    header = false;
+    ++line_no;
+    if (line_no == 1) {
+      if (line + "\n" != header)
+        throw ResumeRefused(fmt::format("{}: line 1 is not the header this configuration writes", file.string()));
+      text += line + "\n";
+      continue;
+    }
+    const std::string first = line.substr(0, line.find(','));
+    std::int64_t step = -1;
+    const auto [end, err] = std::from_chars(first.data(), first.data() + first.size(), step);
+    if (err != std::errc() || end != first.data() + first.size() || fields(line) != fields(header) ||
+        step != last_step + 1)
+      throw ResumeRefused(fmt::format("{}: line {} is not the row of step {} ({} fields expected, starting with the "
+                                      "step)",
+                                      file.string(), line_no, last_step + 1, fields(header)));
+    last_step = step;
+    if (step <= k) text += line + "\n";
   }
+  if (f.bad()) throw ResumeRefused(file.string() + ": cannot read");
+  if (line_no == 0) throw ResumeRefused(file.string() + ": empty (no header)");
+  if (last_step < k)
+    throw ResumeRefused(fmt::format("{}: its rows end at step {}, before the checkpoint's step {} (rows missing)",
+                                    file.string(), last_step, k));
   return text;
 }
 
@@ -250,6 +292,9 @@ void ConfiguredRun::check_magnitudes(const std::vector<ConstantBoundaryData>& da
   };
   point_near("diagnostics.center", c.diagnostics.center);
   point_near("particles.fill_center", c.particles.fill_center);
+  if (c.particles.fill == "gaussian" && !(c.particles.fill_sigma <= far))
+    throw ConfigError("particles.fill_sigma", fmt::format("{}", c.particles.fill_sigma),
+                      fmt::format("must be at most 1e6 domain sizes ({:.4g})", far));
   const double speed = length(c.physics.velocity, Vec3::Zero());
   if (!(speed * c.run.t_end <= far))
     throw ConfigError("physics.velocity", vec(c.physics.velocity),
@@ -347,6 +392,13 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   d.true_spacing = spacing(d.volume, static_cast<std::size_t>(c.particles.n_inf), dim);
   d.beta_true_spacing2 = d.beta * d.true_spacing * d.true_spacing;
   d.layer_b = c.particles.layer_b > 0.0 ? c.particles.layer_b : pp.layer_b;
+  // Given where nothing uses it, it would only seem to have been applied.
+  if (c.particles.layer_b > 0.0 && !any_layer)
+    throw ConfigError("particles.layer_b", fmt::format("{}", c.particles.layer_b),
+                      fmt::format("has no effect here: no patch uses the boundary layer (it serves Neumann patches, "
+                                  "and Dirichlet patches with treatment.dirichlet = \"layer\"; here there is no Neumann "
+                                  "patch and treatment.dirichlet = \"{}\"); remove it",
+                                  c.treatment.dirichlet));
   if (any_layer && !(d.layer_b < 0.5 * st.built.min_extent))
     throw ConfigError("particles.layer_b",
                       fmt::format("{}{}", d.layer_b, c.particles.layer_b > 0.0 ? "" : " (sqrt(length_L dr))"),
@@ -626,11 +678,46 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     switch (e.stage()) {
       case Stage::Reservoir:
         throw ConfigError("treatment.dirichlet", "\"reservoir\"", std::string("not available here: ") + e.what());
-      case Stage::ReservoirMirror:
+      case Stage::ReservoirMirror: {
+        // The band w = reservoir_width x r_c (r_c from the kernel tolerance)
+        // in reservoir_sublayers sublayers: the key at fault is one whose
+        // default makes the setup work (tried here, on the error path only);
+        // otherwise the band is too wide for this domain and spacing.
+        auto works = [&](double tolerance, std::int64_t sublayers) {
+          SimulationOptions o = so;
+          const double w = tr.reservoir_width * cutoff_radius(d.width_s, tolerance);
+          o.projection.reservoir_thickness = w;
+          o.projection.reservoir_sublayers =
+              sublayers > 0 ? static_cast<int>(sublayers) : std::max(1, static_cast<int>(std::lround(2.0 * w / d.dr)));
+          o.implicit.neighbor.kernel_tolerance = o.explicit_options.neighbor.kernel_tolerance = tolerance;
+          try {
+            otfp::Simulation trial(domain_, st.data, o);
+            return true;
+          } catch (const std::exception&) {
+            return false;
+          }
+        };
+        const double default_tolerance = SolverSection{}.kernel_tolerance;
+        if (tr.reservoir_sublayers > 0 && works(c.solver.kernel_tolerance, 0))
+          throw ConfigError(
+              "treatment.reservoir_sublayers", fmt::format("{}", tr.reservoir_sublayers),
+              fmt::format("sublayers of {:.4g} (band {:.4g}, spacing dr = {:.4g}) are too thin for the odd profile to "
+                          "mirror inside Omega ({}); use fewer (0: round(2 w / dr) = {} works)",
+                          d.reservoir_width / static_cast<double>(tr.reservoir_sublayers), d.reservoir_width, d.dr,
+                          e.what(), std::max(1L, std::lround(2.0 * d.reservoir_width / d.dr))));
+        if (c.solver.kernel_tolerance != default_tolerance && works(default_tolerance, tr.reservoir_sublayers))
+          throw ConfigError(
+              "solver.kernel_tolerance", fmt::format("{}", c.solver.kernel_tolerance),
+              fmt::format("gives the kernel cut-off r_c = {:.4g} ({:.3g} widths) and so a reservoir band of "
+                          "treatment.reservoir_width x r_c = {:.4g} that the odd profile cannot mirror inside Omega "
+                          "({}); the default {} works",
+                          d.reservoir_width / tr.reservoir_width, d.reservoir_width / tr.reservoir_width / d.width_s,
+                          d.reservoir_width, e.what(), default_tolerance));
         throw ConfigError("treatment.reservoir_width", fmt::format("{}", tr.reservoir_width),
                           fmt::format("gives a band of {} that the odd profile cannot mirror inside Omega ({}); "
                                       "raise particles.n_inf or lower the width",
                                       d.reservoir_width, e.what()));
+      }
       case Stage::Projection:
         throw ConfigError("boundary", std::string("boundary: ") + e.what());
       case Stage::Periodic:
@@ -1227,6 +1314,8 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
     double t_origin = 0.0, dt_run = d.dt;
     std::int64_t k_origin = 0, n_total = d.n_steps, k_done = 0;
     const std::filesystem::path checkpoint_file = out / "checkpoint.bin";
+    // The configuration the checkpoints are written with (a resume must match it).
+    const std::map<std::string, std::string> fingerprint = write ? config_fingerprint(c) : std::map<std::string, std::string>{};
     // The driver's running sums, kept in the checkpoint next to the library state.
     auto driver_state = [&]() {
       nlohmann::json js;
@@ -1250,6 +1339,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       js["last_t"] = last.t;
       js["last_mass_ratio"] = last.mass_ratio;
       js["last_n"] = last.n_particles;
+      js["config"] = fingerprint;
       return js;
     };
     auto write_checkpoint = [&]() {
@@ -1264,7 +1354,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       if (write) {
         std::filesystem::create_directories(out);
         series_file = AppendFile(out / "series.csv", header);
-        timing_file = AppendFile(out / "timing.csv", "step,t,wall_seconds,step_seconds,solver_seconds,list_seconds\n");
+        timing_file = AppendFile(out / "timing.csv", kTimingHeader);
         write_file_atomic(out / "config.toml", to_toml(c));
         arm_kill_summary(StepRecord{}, false);
         write_domain_surface(out);
@@ -1276,52 +1366,126 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       sim.start(std::move(fill), rng, 0.0);
       emit(diagnostics(0, 0.0, nullptr, sim.initial_step().inserted, sim.initial_step().removed), false);
     } else {
-      std::string extra;
-      sim.load_checkpoint(checkpoint_file, &extra);
-      const nlohmann::json js = nlohmann::json::parse(extra);
-      l1 = l1_from_state(js.at("l1"));
-      prev_measures = measures_from_state(js.at("prev_measures"));
-      S0 = js.at("S0").get<double>();
-      A0 = js.at("A0").get<double>();
-      mode_log = js.at("mode_log").get<std::vector<std::pair<double, double>>>();
-      mode_fit_open = js.at("mode_fit_open").get<bool>();
-      ref_stats.clear();
-      for (const auto& e : js.at("ref_stats")) ref_stats.push_back(ErrorStats::from_state(e));
-      blob_stats = ErrorStats::from_state(js.at("blob_stats"));
-      snapshots = js.at("snapshots").get<std::vector<std::pair<double, std::string>>>();
-      last_snapshot = js.at("last_snapshot").get<std::int64_t>();
-      n0 = js.at("n0").get<std::int64_t>();
-      M0 = js.at("M0").get<double>();
-      last.step = js.at("last_step").get<std::int64_t>();
-      last.t = js.at("last_t").get<double>();
-      last.mass_ratio = js.at("last_mass_ratio").get<double>();
-      last.n_particles = js.at("last_n").get<std::int64_t>();
-      result.rows = true;  // the rows up to the checkpoint
-      k_done = sim.step_count();
-      if (!(js.at("k_origin").get<std::int64_t>() == 0 && js.at("dt_run").get<double>() == d.dt)) {
-        // A new t_end changed dt = t_end / n_steps: the rest of the run gets
-        // its own equal steps from the checkpoint on.
-        const double dt0 = c.run.dt ? *c.run.dt : c.run.dt_factor * d.dt_explicit;
-        t_origin = sim.time();
-        k_origin = k_done;
-        const std::int64_t m = std::max<std::int64_t>(
-            1, static_cast<std::int64_t>(std::ceil((c.run.t_end - t_origin) / dt0 * (1.0 - 1e-12))));
-        dt_run = (c.run.t_end - t_origin) / static_cast<double>(m);
-        n_total = k_done + m;
-      }
-      step_dt = dt_run;
-      const bool done = c.run.dt_mode == "adaptive"
-                            ? sim.time() >= c.run.t_end || (c.run.max_steps > 0 && k_done >= c.run.max_steps)
-                            : k_done >= (c.run.max_steps > 0 ? std::min(n_total, c.run.max_steps) : n_total);
-      if (done) {
-        result.status = "completed";
-        result.nothing_to_do = true;
-        result.last = last;
+      // Everything the resume needs is read and checked before any file is
+      // touched: a refused resume leaves the run's directory as it was.
+      std::string series_text, timing_text;
+      try {
+        // The driver's data first: a checkpoint of another configuration is
+        // refused naming the key (the library would name its own field).
+        nlohmann::json js;
+        try {
+          js = nlohmann::json::parse(otfp::Simulation::checkpoint_extra(checkpoint_file));
+        } catch (const nlohmann::json::exception& e) {
+          throw ResumeRefused(fmt::format("checkpoint {}: not written by otfp run (its driver state: {})",
+                                          checkpoint_file.string(), e.what()));
+        } catch (const std::exception& e) {
+          throw ResumeRefused(e.what());
+        }
+        // The checkpoint's configuration against this one, key by key.
+        if (!js.contains("config") || !js["config"].is_object())
+          throw ResumeRefused(fmt::format("checkpoint {}: holds no configuration to compare with (written by an "
+                                          "older otfp?)",
+                                          checkpoint_file.string()));
+        std::map<std::string, std::string> theirs;
+        try {
+          theirs = js["config"].get<std::map<std::string, std::string>>();
+        } catch (const nlohmann::json::exception& e) {
+          throw ResumeRefused(fmt::format("checkpoint {}: its configuration is unreadable ({})",
+                                          checkpoint_file.string(), e.what()));
+        }
+        if (theirs != fingerprint) {
+          std::vector<std::string> differ;
+          auto shown = [](const std::map<std::string, std::string>& m, const std::string& k) {
+            const auto it = m.find(k);
+            return it == m.end() ? std::string("(absent)") : it->second;
+          };
+          for (const auto& [k, v] : fingerprint)
+            if (shown(theirs, k) != v)
+              differ.push_back(fmt::format("{} = {} (the checkpoint's: {})", k, v, shown(theirs, k)));
+          for (const auto& [k, v] : theirs)
+            if (!fingerprint.count(k)) differ.push_back(fmt::format("{} = (absent) (the checkpoint's: {})", k, v));
+          const std::size_t more = differ.size() > 3 ? differ.size() - 3 : 0;
+          differ.resize(std::min<std::size_t>(differ.size(), 3));
+          std::string list;
+          for (const std::string& x : differ) list += (list.empty() ? "" : "; ") + x;
+          if (more > 0) list += fmt::format("; and {} more", more);
+          throw ResumeRefused(fmt::format("{} differs from the run that wrote {}: {} (only {} may change on --resume, "
+                                          "with --set)",
+                                          (out / "config.toml").string(), checkpoint_file.string(), list,
+                                          fmt::join(resume_keys(), ", ")));
+        }
+        try {
+          sim.load_checkpoint(checkpoint_file);
+        } catch (const std::exception& e) {
+          throw ResumeRefused(e.what());
+        }
+        try {
+          l1 = l1_from_state(js.at("l1"));
+          prev_measures = measures_from_state(js.at("prev_measures"));
+          S0 = js.at("S0").get<double>();
+          A0 = js.at("A0").get<double>();
+          mode_log = js.at("mode_log").get<std::vector<std::pair<double, double>>>();
+          mode_fit_open = js.at("mode_fit_open").get<bool>();
+          ref_stats.clear();
+          for (const auto& e : js.at("ref_stats")) ref_stats.push_back(ErrorStats::from_state(e));
+          blob_stats = ErrorStats::from_state(js.at("blob_stats"));
+          snapshots = js.at("snapshots").get<std::vector<std::pair<double, std::string>>>();
+          last_snapshot = js.at("last_snapshot").get<std::int64_t>();
+          n0 = js.at("n0").get<std::int64_t>();
+          M0 = js.at("M0").get<double>();
+          last.step = js.at("last_step").get<std::int64_t>();
+          last.t = js.at("last_t").get<double>();
+          last.mass_ratio = js.at("last_mass_ratio").get<double>();
+          last.n_particles = js.at("last_n").get<std::int64_t>();
+          js.at("k_origin").get<std::int64_t>();
+          js.at("dt_run").get<double>();
+        } catch (const nlohmann::json::exception& e) {
+          throw ResumeRefused(fmt::format("checkpoint {}: not written by otfp run (its driver state: {})",
+                                          checkpoint_file.string(), e.what()));
+        }
+        k_done = sim.step_count();
+        if (!(c.run.t_end >= sim.time()))
+          throw ResumeRefused(fmt::format("run.t_end = {}: must be >= the time t = {} of {} (step {})", c.run.t_end,
+                                          sim.time(), checkpoint_file.string(), k_done));
+        const double dt_before = js.at("dt_run").get<double>();
+        if (!(js.at("k_origin").get<std::int64_t>() == 0 && dt_before == d.dt)) {
+          // A new t_end changed dt = t_end / n_steps: the rest of the run gets
+          // its own equal steps from the checkpoint on, as long as the steps
+          // of the run it continues (not the raw dt of run.dt or
+          // run.dt_factor, which t_end / n_steps rounded down).
+          const double dt0 = dt_before;
+          if (!(std::isfinite(dt0) && dt0 > 0.0))
+            throw ResumeRefused(fmt::format("checkpoint {}: its step dt = {} is not > 0", checkpoint_file.string(), dt0));
+          t_origin = sim.time();
+          k_origin = k_done;
+          const std::int64_t m = std::max<std::int64_t>(
+              1, static_cast<std::int64_t>(std::ceil((c.run.t_end - t_origin) / dt0 * (1.0 - 1e-12))));
+          dt_run = (c.run.t_end - t_origin) / static_cast<double>(m);
+          n_total = k_done + m;
+        }
+        step_dt = dt_run;
+        const bool done = c.run.dt_mode == "adaptive"
+                              ? sim.time() >= c.run.t_end || (c.run.max_steps > 0 && k_done >= c.run.max_steps)
+                              : sim.time() >= c.run.t_end ||
+                                    k_done >= (c.run.max_steps > 0 ? std::min(n_total, c.run.max_steps) : n_total);
+        if (done) {
+          result.status = "completed";
+          result.nothing_to_do = true;
+          result.last = last;
+          return result;
+        }
+        // The rows after the checkpoint (a run killed between checkpoints) are taken again.
+        series_text = csv_up_to_step(out / "series.csv", header, k_done);
+        timing_text = csv_up_to_step(out / "timing.csv", kTimingHeader, k_done);
+      } catch (const ResumeRefused& e) {
+        result.status = "refused";
+        result.error = e.what();
+        result.exit_code = kExitRefused;
         return result;
       }
-      // The rows after the checkpoint (a run killed between checkpoints) are taken again.
-      series_file = AppendFile(out / "series.csv", csv_up_to_step(out / "series.csv", k_done));
-      timing_file = AppendFile(out / "timing.csv", csv_up_to_step(out / "timing.csv", k_done));
+      result.rows = true;  // the rows up to the checkpoint
+      series_file = AppendFile(out / "series.csv", series_text);
+      timing_file = AppendFile(out / "timing.csv", timing_text);
       arm_kill_summary(last, true);
       write_file_atomic(out / "summary.json", summary("running", "", last).dump(2) + "\n");
     }
@@ -1402,8 +1566,13 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
         result.error = e.what();
         result.exit_code = 1;
       } else {
-        result.error += fmt::format("; summary.json could not be updated either ({}): it may still say \"running\"",
-                                    e.what());
+        std::error_code ec;
+        result.error += std::filesystem::exists(out / "summary.json", ec)
+                            ? fmt::format("; summary.json could not be updated either ({}): it may still say "
+                                          "\"running\"",
+                                          e.what())
+                            : fmt::format("; summary.json could not be written either ({}): there is no summary.json",
+                                          e.what());
       }
     }
   }

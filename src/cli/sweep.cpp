@@ -181,6 +181,17 @@ SweepAxis parse_vary(const std::string& text) {
 }
 
 std::vector<std::vector<std::string>> expand_grid(const std::vector<SweepAxis>& axes) {
+  // At most kMaxSweepRuns points (run_0000 ... run_9999), checked before
+  // the grid is built: three axes of 300 values would be 2.7e7 rows.
+  double runs = 1.0;
+  std::string sizes;
+  for (const SweepAxis& a : axes) {
+    runs *= static_cast<double>(a.values.size());
+    sizes += (sizes.empty() ? "" : " x ") + std::to_string(a.values.size());
+  }
+  if (runs > static_cast<double>(kMaxSweepRuns))
+    throw ConfigError("--vary", fmt::format("{} = {:.0f} runs", sizes, runs),
+                      fmt::format("must give at most {} runs", kMaxSweepRuns));
   std::vector<std::vector<std::string>> grid(1);
   for (const SweepAxis& a : axes) {
     std::vector<std::vector<std::string>> next;
@@ -234,6 +245,7 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
     throw ConfigError("--out", "\"" + o.out_dir.string() + "\"", "exists and is not a directory");
   if (::access(o.executable.c_str(), X_OK) != 0)
     throw ConfigError("executable", "\"" + o.executable.string() + "\"", "is not an executable otfp binary");
+  expand_grid(o.axes);  // its size is checked before the values are
   std::vector<std::string> keys;
   for (const SweepAxis& a : o.axes)
     for (const std::string& k : a.keys) {
@@ -320,8 +332,17 @@ SweepResult run_sweep(const SweepOptions& o, std::ostream& err) {
     posix_spawnattr_setsigdefault(&attr, &defaults);
     posix_spawnattr_setpgroup(&attr, 0);
     posix_spawnattr_setflags(&attr, POSIX_SPAWN_SETPGROUP | POSIX_SPAWN_SETSIGMASK | POSIX_SPAWN_SETSIGDEF);
+    // OTFP_SWEEP_PID: the run asks for SIGTERM when this process dies (a
+    // sweep killed outright must not leave its runs running; cli.cpp).
+    std::vector<std::string> env_text;
+    for (char** e = environ; *e; ++e)
+      if (std::string(*e).rfind("OTFP_SWEEP_PID=", 0) != 0) env_text.emplace_back(*e);
+    env_text.push_back("OTFP_SWEEP_PID=" + std::to_string(::getpid()));
+    std::vector<char*> envp;
+    for (std::string& e : env_text) envp.push_back(e.data());
+    envp.push_back(nullptr);
     pid_t pid = -1;
-    const int rc = posix_spawn(&pid, argv[0], &fa, &attr, argv.data(), environ);
+    const int rc = posix_spawn(&pid, argv[0], &fa, &attr, argv.data(), envp.data());
     posix_spawnattr_destroy(&attr);
     posix_spawn_file_actions_destroy(&fa);
     if (rc != 0) throw std::runtime_error(fmt::format("cannot start {}: {}", argv[0], std::strerror(rc)));

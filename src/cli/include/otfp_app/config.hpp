@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <limits>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <stdexcept>
@@ -203,6 +204,17 @@ const std::vector<KeyInfo>& schema();
 // absent optional keys and keys that do not apply are omitted). Parsing it
 // again gives the same Config.
 std::string to_toml(const Config& config);
+
+// The keys a resumed run may change (otfp run --resume DIR --set ...): where
+// it ends and how it writes; every other key is the checkpoint's.
+const std::vector<std::string>& resume_keys();
+
+// The configuration as a checkpoint records it: every key but resume_keys(),
+// "section.key" (arrays of tables "boundary[0].value") -> the value as JSON
+// text, taken from the configuration as config.toml holds it (to_toml parsed
+// again, so that keys to_toml leaves out compare equal). A resume compares
+// its own with the checkpoint's and refuses any difference.
+std::map<std::string, std::string> config_fingerprint(const Config& config);
 
 // The resolved configuration as JSON (what `otfp check` and summary.json
 // show): every key with defaults filled in, absent optional keys as null,

@@ -105,6 +105,10 @@ struct StepRecord {
 // Exit code of a run stopped by SIGINT/SIGTERM (checkpoint written; continue
 // with `otfp run --resume DIR`). 0 completed, 1 failed, 2 bad input.
 constexpr int kExitInterrupted = 3;
+// A resume refused before any file was touched (a damaged or foreign
+// checkpoint, series.csv or timing.csv unreadable, run.t_end before the
+// checkpoint's time): bad input, exit code 2.
+constexpr int kExitRefused = 2;
 
 struct RunOptions {
   std::filesystem::path out_dir;  // empty: write nothing (in-memory run for tests)
@@ -116,8 +120,8 @@ struct RunOptions {
 };
 
 struct RunResult {
-  int exit_code = 0;              // 0 completed, 1 failed, kExitInterrupted
-  std::string status;             // "completed" | "failed" | "interrupted"
+  int exit_code = 0;              // 0 completed, 1 failed, kExitInterrupted, kExitRefused
+  std::string status;             // "completed" | "failed" | "interrupted" | "refused" (nothing written)
   bool nothing_to_do = false;     // resume: the checkpoint is already at run.t_end (no file touched)
   std::string error;              // why it failed
   std::vector<StepRecord> series;

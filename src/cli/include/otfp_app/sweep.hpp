@@ -2,6 +2,7 @@
 // `otfp sweep`: runs the grid of --vary values of one configuration, each as
 // a separate `otfp run` process (a crash or a failed step stays one row), and
 // aggregates the runs' summary.json files into runs.csv (docs/outputs.md).
+#include <cstddef>
 #include <csignal>
 #include <filesystem>
 #include <iosfwd>
@@ -24,8 +25,11 @@ struct SweepAxis {
 // Throws ConfigError("--vary", ...).
 SweepAxis parse_vary(const std::string& text);
 
+// At most this many runs in a sweep (run_0000 ... run_9999).
+constexpr std::size_t kMaxSweepRuns = 10000;
 // Every combination, the first axis varying slowest; each entry holds one
-// value per key (all keys of all axes, in order).
+// value per key (all keys of all axes, in order). Throws ConfigError
+// ("--vary") for more than kMaxSweepRuns points.
 std::vector<std::vector<std::string>> expand_grid(const std::vector<SweepAxis>& axes);
 
 struct SweepOptions {
