@@ -39,6 +39,7 @@
 #include "otfp/time_step_control.hpp"
 #include "otfp/types.hpp"
 #include "otfp_app/config.hpp"
+#include "otfp_app/out_dir.hpp"
 #include "otfp_app/simulation.hpp"
 
 namespace py = pybind11;
@@ -286,6 +287,30 @@ class PyFunctional {
 // Thrown by the observer wrapper when the Python observer returns False.
 struct StopRequested {};
 
+// ConfiguredRun.run's out_dir refused (an earlier run there, a held lock, not
+// a directory): the command-line tool's rules, raised as a ValueError.
+class OutputDirError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// Control characters as escapes: a path with a newline stays a one-line message.
+std::string escaped(const std::string& s) {
+  std::string out;
+  for (const char ch : s) {
+    const auto u = static_cast<unsigned char>(ch);
+    if (u < 0x20 || u == 0x7f) {
+      static const char hex[] = "0123456789abcdef";
+      out += "\\x";
+      out += hex[u >> 4];
+      out += hex[u & 15];
+    } else {
+      out += ch;
+    }
+  }
+  return out;
+}
+
 py::dict json_to_dict(const nlohmann::json& j) {
   py::module_ json = py::module_::import("json");
   return json.attr("loads")(j.dump()).cast<py::dict>();
@@ -300,6 +325,7 @@ PYBIND11_MODULE(_otfp, m) {
   py::register_exception<InvalidArgument>(m, "InvalidArgument", PyExc_ValueError);
   py::register_exception<app::ConfigError>(m, "ConfigError", PyExc_ValueError);
   py::register_exception<StepFailure>(m, "StepFailure", PyExc_RuntimeError);
+  py::register_exception<OutputDirError>(m, "OutputDirError", PyExc_ValueError);
   m.attr("__version__") = app::version();
 
   // ---- enums
@@ -901,7 +927,7 @@ PYBIND11_MODULE(_otfp, m) {
       .def("make_simulation", [](const app::ConfiguredRun& r) { return r.make_simulation(); },
            "A started Simulation as `otfp run` builds it: advance_to(k * dt) reproduces the CLI's steps bit for bit.")
       .def("run",
-           [](app::ConfiguredRun& r, const std::filesystem::path& out_dir, bool progress) {
+           [](app::ConfiguredRun& r, const std::filesystem::path& out_dir, bool progress, bool overwrite) {
              app::RunOptions o;
              o.out_dir = out_dir;
              o.progress = progress;
@@ -909,6 +935,14 @@ PYBIND11_MODULE(_otfp, m) {
              app::RunResult res;
              {
                py::gil_scoped_release release;
+               // The command-line tool's rules: the directory locked for the
+               // whole run, an earlier run's refused unless overwrite=True.
+               app::OutputLock lock;
+               if (!out_dir.empty())
+                 if (const std::string why =
+                         app::prepare_out_dir(out_dir, /*resume=*/false, overwrite, lock, "overwrite=True");
+                     !why.empty())
+                   throw OutputDirError("out_dir = \"" + escaped(out_dir.string()) + "\": " + escaped(why));
                res = r.run(o);
              }
              py::dict d;
@@ -918,8 +952,11 @@ PYBIND11_MODULE(_otfp, m) {
              d["summary"] = json_to_dict(res.summary);
              return d;
            },
-           py::arg("out_dir") = std::filesystem::path(), py::arg("progress") = false,
-           "The whole run as `otfp run CONFIG --out out_dir` (nothing written when out_dir is empty).");
+           py::arg("out_dir") = std::filesystem::path(), py::arg("progress") = false, py::kw_only(),
+           py::arg("overwrite") = false,
+           "The whole run as `otfp run CONFIG --out out_dir [--overwrite]` (nothing written when out_dir is empty). "
+           "OutputDirError (a ValueError) when out_dir holds an earlier run (unless overwrite=True) or another "
+           "run holds its lock.");
   m.def("load_config",
         [](const std::filesystem::path& path, const std::vector<std::string>& overrides) {
           return std::make_unique<app::ConfiguredRun>(app::parse_config_file(path, overrides));

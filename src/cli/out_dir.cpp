@@ -78,7 +78,9 @@ std::string OutputLock::acquire(const fs::path& dir) {
   return "cannot lock " + path_.string() + ": it keeps being replaced";
 }
 
-std::string prepare_out_dir(const fs::path& dir, bool resume, bool overwrite, OutputLock& lock) {
+std::string prepare_out_dir(const fs::path& dir, bool resume, bool overwrite, OutputLock& lock,
+                            std::string_view overwrite_name) {
+  const std::string flag(overwrite_name);
   std::error_code ec;
   const bool existed = fs::exists(dir, ec);
   if (ec && ec != std::errc::no_such_file_or_directory) return "cannot use it: " + ec.message();
@@ -98,13 +100,13 @@ std::string prepare_out_dir(const fs::path& dir, bool resume, bool overwrite, Ou
   if (earlier.empty()) return "";
   if (!overwrite)
     return "holds an earlier otfp run (" + earlier +
-           "); pass --overwrite to replace its files, or continue it with otfp run --resume " + dir.string();
+           "); pass " + flag + " to replace its files, or continue it with otfp run --resume " + dir.string();
   std::vector<fs::path> old_files;
   for (const fs::directory_entry& e : fs::directory_iterator(dir, ec))
     if (is_run_output(e.path().filename().string()) && !e.is_directory()) old_files.push_back(e.path());
-  if (ec) return "--overwrite cannot list the directory: " + ec.message();
+  if (ec) return flag + " cannot list the directory: " + ec.message();
   for (const fs::path& f : old_files)
-    if (!fs::remove(f, ec) && ec) return "--overwrite cannot remove " + f.string() + ": " + ec.message();
+    if (!fs::remove(f, ec) && ec) return flag + " cannot remove " + f.string() + ": " + ec.message();
   return "";
 }
 

@@ -4,6 +4,7 @@
 // earlier run's directory.
 #include <filesystem>
 #include <string>
+#include <string_view>
 
 namespace otfp::app {
 
@@ -30,7 +31,9 @@ class OutputLock {
 // fails after its initial fill. Then an earlier run there (summary.json,
 // series.csv or checkpoint.bin) is refused unless the run resumes it or
 // --overwrite clears its files first. Returns why the directory cannot be
-// used, or "".
-std::string prepare_out_dir(const std::filesystem::path& dir, bool resume, bool overwrite, OutputLock& lock);
+// used, or "". `overwrite_name`: how the caller spells the overwrite option
+// in the messages (the Python module's is "overwrite=True").
+std::string prepare_out_dir(const std::filesystem::path& dir, bool resume, bool overwrite, OutputLock& lock,
+                            std::string_view overwrite_name = "--overwrite");
 
 }  // namespace otfp::app
