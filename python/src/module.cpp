@@ -3,6 +3,11 @@
 // diagnostics and analytic references, and the command-line tool's TOML
 // configurations. docs/python.md describes the API.
 //
+// Threads: every object whose methods release the GIL (Simulation, the
+// steppers, Functional, ConfiguredRun.run, and a ParticleSet while a stepper
+// works on it) serialises them with a lock of its own (ObjectLock below), so
+// that threads sharing an object take turns instead of racing.
+//
 // Arrays: a ParticleSet's positions, widths, masses, birth times and ids are
 // numpy views of its own storage (no copy); while a view is alive the set
 // refuses to change size or order (BufferError, as bytearray does), because
@@ -18,6 +23,7 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -120,24 +126,84 @@ py::array view_of(py::object owner, const ParticleSet& set, T* data, std::vector
   return a;
 }
 
+// ------------------------------------------------------------------ threads
+
+// Serialises the methods of one bound object across threads. A thread waits
+// for it with the GIL released: the holder may need the GIL to finish (the
+// observer of run_until), so waiting with it would deadlock. Re-entrant, so
+// that an observer called under the lock may use its own simulation. Call
+// hold() with the GIL held (as every bound method is called).
+class ObjectLock {
+ public:
+  std::unique_lock<std::recursive_mutex> hold() {
+    std::unique_lock<std::recursive_mutex> lock(mutex_, std::try_to_lock);
+    if (!lock.owns_lock()) {
+      py::gil_scoped_release release;
+      lock.lock();
+    }
+    return lock;
+  }
+
+ private:
+  std::recursive_mutex mutex_;
+};
+
+// A library object and its lock (the library's classes cannot be moved, so
+// the object is held by pointer).
+template <class T>
+struct Locked {
+  explicit Locked(std::unique_ptr<T> o) : object(std::move(o)) {}
+  std::unique_ptr<T> object;
+  ObjectLock lock;
+};
+
+// The locks of the ParticleSets that a stepper is working on (guarded by the
+// GIL): a second step of the same set waits for the first, so neither result
+// is lost, and resizing the set meanwhile is refused.
+struct SetStep {
+  ObjectLock lock;
+  long users = 0;
+};
+std::unordered_map<const ParticleSet*, std::unique_ptr<SetStep>>& set_steps() {
+  static std::unordered_map<const ParticleSet*, std::unique_ptr<SetStep>> map;
+  return map;
+}
+
 void require_no_views(const ParticleSet& set, const char* what) {
   auto it = exports().find(&set);
   if (it != exports().end() && it->second > 0)
     throw py::buffer_error(std::string(what) + ": " + std::to_string(it->second) +
                            " numpy view(s) of this ParticleSet are alive and would be left pointing at freed "
                            "memory; delete them (or take copies with numpy.array(view)) first");
+  if (set_steps().count(&set))
+    throw py::buffer_error(std::string(what) +
+                           ": a stepper is stepping this ParticleSet in another thread; wait for its step first");
 }
 
 // Runs f on a copy of `set` and takes the result back without moving the
-// storage (the steppers reorder particles; views stay valid and see the result).
+// storage (the steppers reorder particles; views stay valid and see the
+// result). Steps of one set from several threads take turns.
 template <class F>
 auto on_copy(ParticleSet& set, F&& f) {
+  std::unique_ptr<SetStep>& entry = set_steps()[&set];
+  if (!entry) entry = std::make_unique<SetStep>();
+  SetStep* const step = entry.get();  // stays put while users > 0
+  ++step->users;
+  struct Release {
+    const ParticleSet* set;
+    SetStep* step;
+    ~Release() {  // the GIL is held again here
+      if (--step->users == 0) set_steps().erase(set);
+    }
+  } release_entry{&set, step};
+  auto held = step->lock.hold();
   ParticleSet work = set;
   auto result = [&] {
     py::gil_scoped_release release;
     return f(work);
   }();
   set.assign_in_place(work);
+  held.unlock();
   return result;
 }
 
@@ -242,6 +308,7 @@ class PyFunctional {
       : functional_(dim, options, make_barrier(domain, barrier_stiffness), periodicity_of(domain, dim)) {}
 
   void set_reference(const DoubleArray& x, const DoubleArray& s, const DoubleArray& m) {
+    auto held = lock_.hold();
     x_ref_ = points_from(x, "x_ref");
     const std::size_t n = x_ref_.size();
     s_ref_ = values_from(s, n, "s_ref");
@@ -250,6 +317,7 @@ class PyFunctional {
   }
 
   py::dict evaluate(const DoubleArray& x, const DoubleArray& s, bool all_pairs) {
+    auto held = lock_.hold();
     if (!has_reference_) throw InvalidArgument("Functional.evaluate: call set_reference() first");
     const std::vector<Vec3> xv = points_from(x, "x");
     if (xv.size() != x_ref_.size())
@@ -273,9 +341,8 @@ class PyFunctional {
     return out;
   }
 
-  Functional& functional() { return functional_; }
-
  private:
+  ObjectLock lock_;
   Functional functional_;
   std::vector<Vec3> x_ref_;
   std::vector<double> s_ref_;
@@ -757,65 +824,103 @@ PYBIND11_MODULE(_otfp, m) {
       .def("evaluate", &PyFunctional::evaluate, py::arg("x"), py::arg("s"), py::arg("all_pairs") = false,
            "dict: value, transport, entropy, barrier, gradient_x (n, 3), gradient_s (n,) or None, density (n,)");
 
-  // ---- steppers
-  py::class_<ImplicitStepper>(m, "ImplicitStepper", "Minimises (28) each step (Ceres or NLopt).")
+  // ---- steppers (each with its lock: threads sharing one take turns)
+  using PyImplicitStepper = Locked<ImplicitStepper>;
+  using PyExplicitStepper = Locked<ExplicitStepper>;
+  py::class_<PyImplicitStepper>(m, "ImplicitStepper", "Minimises (28) each step (Ceres or NLopt).")
       .def(py::init([](const PyDomain& domain, const ImplicitOptions& options, double barrier_stiffness,
                        std::optional<int> dim) {
              options.validate();
-             return std::make_unique<ImplicitStepper>(dim_of(domain, dim), options, make_barrier(domain, barrier_stiffness),
-                                                      periodicity_of(domain, dim_of(domain, dim)));
+             return std::make_unique<PyImplicitStepper>(std::make_unique<ImplicitStepper>(
+                 dim_of(domain, dim), options, make_barrier(domain, barrier_stiffness),
+                 periodicity_of(domain, dim_of(domain, dim))));
            }),
            py::arg("domain") = PyDomain{}, py::arg("options") = ImplicitOptions{}, py::arg("barrier_stiffness") = 0.0,
            py::arg("dim") = py::none())
       .def("step",
-           [](ImplicitStepper& st, ParticleSet& ps, double dt, double max_error) {
-             return on_copy(ps, [&](ParticleSet& w) { return st.step(w, dt, max_error); });
+           [](PyImplicitStepper& st, ParticleSet& ps, double dt, double max_error) {
+             auto held = st.lock.hold();
+             return on_copy(ps, [&](ParticleSet& w) { return st.object->step(w, dt, max_error); });
            },
            py::arg("particles"), py::arg("dt"), py::arg("max_error") = std::numeric_limits<double>::infinity(),
            "One step of length dt, in place (the GIL is released). A failed step leaves the particles as they were.")
-      .def("reset_history", &ImplicitStepper::reset_history)
-      .def_property_readonly("options", &ImplicitStepper::options);
-  py::class_<ExplicitStepper>(m, "ExplicitStepper", "Algorithm 1 line 4 (sign corrected), RK4, or Euler on dF/dx.")
+      .def("reset_history",
+           [](PyImplicitStepper& st) {
+             auto held = st.lock.hold();
+             st.object->reset_history();
+           })
+      .def_property_readonly("options", [](PyImplicitStepper& st) {
+        auto held = st.lock.hold();
+        return ImplicitOptions(st.object->options());
+      }, "A copy of the stepper's options.");
+  py::class_<PyExplicitStepper>(m, "ExplicitStepper", "Algorithm 1 line 4 (sign corrected), RK4, or Euler on dF/dx.")
       .def(py::init([](const PyDomain& domain, const ExplicitOptions& options, double barrier_stiffness,
                        std::optional<int> dim) {
              options.validate();
-             return std::make_unique<ExplicitStepper>(dim_of(domain, dim), options, make_barrier(domain, barrier_stiffness),
-                                                      periodicity_of(domain, dim_of(domain, dim)));
+             return std::make_unique<PyExplicitStepper>(std::make_unique<ExplicitStepper>(
+                 dim_of(domain, dim), options, make_barrier(domain, barrier_stiffness),
+                 periodicity_of(domain, dim_of(domain, dim))));
            }),
            py::arg("domain") = PyDomain{}, py::arg("options") = ExplicitOptions{}, py::arg("barrier_stiffness") = 0.0,
            py::arg("dim") = py::none())
       .def("step",
-           [](ExplicitStepper& st, ParticleSet& ps, double dt) {
-             return on_copy(ps, [&](ParticleSet& w) { return st.step(w, dt); });
+           [](PyExplicitStepper& st, ParticleSet& ps, double dt) {
+             auto held = st.lock.hold();
+             return on_copy(ps, [&](ParticleSet& w) { return st.object->step(w, dt); });
            },
            py::arg("particles"), py::arg("dt"), "One explicit step, in place (the GIL is released).");
 
-  // ---- Simulation
-  py::class_<Simulation>(m, "Simulation", "Algorithm 1: advection, source, diffusion, projection, ledger.")
+  // ---- Simulation (with its lock: every method waits for a step running in
+  // another thread; the observer of run_until may use its own simulation)
+  using PySimulation = Locked<Simulation>;
+  py::class_<PySimulation>(m, "Simulation", "Algorithm 1: advection, source, diffusion, projection, ledger.")
       .def(py::init([](const PyDomain& domain, std::vector<ConstantBoundaryData> boundary,
                        const SimulationOptions& options) {
              if (!domain) throw InvalidArgument("domain: required");
-             return std::make_unique<Simulation>(domain, std::move(boundary), options);
+             return std::make_unique<PySimulation>(std::make_unique<Simulation>(domain, std::move(boundary), options));
            }),
            py::arg("domain"), py::arg("boundary"), py::arg("options"))
-      .def("start", [](Simulation& s, const ParticleSet& ps, double t0) { s.start(ps, t0); }, py::arg("particles"),
-           py::arg("t0") = 0.0, "The state at t0 (a copy of the particles); random numbers from options.seed.")
-      .def("advance", &Simulation::advance, py::arg("dt"), py::call_guard<py::gil_scoped_release>())
-      .def("advance_to", &Simulation::advance_to, py::arg("t_end"), py::call_guard<py::gil_scoped_release>())
-      .def("advance_adaptive", &Simulation::advance_adaptive, py::arg("t_limit"),
-           py::call_guard<py::gil_scoped_release>())
+      .def("start",
+           [](PySimulation& s, const ParticleSet& ps, double t0) {
+             auto held = s.lock.hold();
+             s.object->start(ps, t0);
+           },
+           py::arg("particles"), py::arg("t0") = 0.0,
+           "The state at t0 (a copy of the particles); random numbers from options.seed.")
+      .def("advance",
+           [](PySimulation& s, double dt) {
+             auto held = s.lock.hold();
+             py::gil_scoped_release release;
+             return s.object->advance(dt);
+           },
+           py::arg("dt"))
+      .def("advance_to",
+           [](PySimulation& s, double t_end) {
+             auto held = s.lock.hold();
+             py::gil_scoped_release release;
+             return s.object->advance_to(t_end);
+           },
+           py::arg("t_end"))
+      .def("advance_adaptive",
+           [](PySimulation& s, double t_limit) {
+             auto held = s.lock.hold();
+             py::gil_scoped_release release;
+             return s.object->advance_adaptive(t_limit);
+           },
+           py::arg("t_limit"))
       .def("run_until",
-           [](Simulation& s, double t_end, double dt, py::object observer, bool adaptive) {
+           [](PySimulation& s, double t_end, double dt, py::object observer, bool adaptive) {
+             auto held = s.lock.hold();
              Simulation::Observer obs;
              if (!observer.is_none())
-               obs = [&observer](const Simulation& sim, const SimulationStep& step) {
+               obs = [&observer, &s](const Simulation&, const SimulationStep& step) {
                  py::gil_scoped_acquire acquire;
-                 py::object r = observer(py::cast(sim, py::return_value_policy::reference), py::cast(step));
+                 py::object r = observer(py::cast(s, py::return_value_policy::reference), py::cast(step));
                  if (!r.is_none() && !r.cast<bool>()) throw StopRequested{};
                };
              try {
                py::gil_scoped_release release;
-               s.run_until(t_end, dt, obs, adaptive);
+               s.object->run_until(t_end, dt, obs, adaptive);
              } catch (const StopRequested&) {
                return false;
              }
@@ -824,31 +929,88 @@ PYBIND11_MODULE(_otfp, m) {
            py::arg("t_end"), py::arg("dt"), py::arg("observer") = py::none(), py::arg("adaptive") = false,
            "Steps to t_end (equal steps of at most dt, or adaptive). observer(sim, step) sees every step; "
            "returning False stops after that step. Returns True when t_end was reached.")
-      .def_property_readonly("time", &Simulation::time)
-      .def_property_readonly("step_count", &Simulation::step_count)
-      .def_property_readonly("started", &Simulation::started)
-      .def_property_readonly("next_dt", &Simulation::next_dt)
-      .def("set_next_dt", &Simulation::set_next_dt, py::arg("dt"))
-      .def_property_readonly("particles", [](const Simulation& s) { return ParticleSet(s.particles()); },
+      .def_property_readonly("time",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return s.object->time();
+                             })
+      .def_property_readonly("step_count",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return s.object->step_count();
+                             })
+      .def_property_readonly("started",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return s.object->started();
+                             })
+      .def_property_readonly("next_dt",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return s.object->next_dt();
+                             })
+      .def("set_next_dt",
+           [](PySimulation& s, double dt) {
+             auto held = s.lock.hold();
+             s.object->set_next_dt(dt);
+           },
+           py::arg("dt"))
+      .def_property_readonly("particles",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return ParticleSet(s.object->particles());
+                             },
                              "A copy of the particles (the simulation's own change size every step).")
-      .def_property_readonly("domain", [](const Simulation& s) { return mutable_domain(s.domain_ptr()); })
-      .def_property_readonly("options", &Simulation::options)
-      .def_property_readonly("ledger", &Simulation::ledger)
-      .def_property_readonly("totals", &Simulation::totals)
-      .def_property_readonly("initial_step", &Simulation::initial_step)
-      .def("full_report", &Simulation::full_report)
+      .def_property_readonly("domain", [](PySimulation& s) { return mutable_domain(s.object->domain_ptr()); })
+      .def_property_readonly("options",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return SimulationOptions(s.object->options());
+                             },
+                             "A copy of the options.")
+      .def_property_readonly("ledger",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return SimulationLedger(s.object->ledger());
+                             })
+      .def_property_readonly("totals",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return SimulationTotals(s.object->totals());
+                             })
+      .def_property_readonly("initial_step",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return SimulationStep(s.object->initial_step());
+                             })
+      .def("full_report",
+           [](PySimulation& s) {
+             auto held = s.lock.hold();
+             return s.object->full_report();
+           })
       .def("measure",
-           [](const Simulation& s, const Vec3& center) {
+           [](PySimulation& s, const Vec3& center) {
+             auto held = s.lock.hold();
              std::vector<std::int32_t> region;
-             const StateMeasures ms = s.measure(center, &region);
+             const StateMeasures ms = s.object->measure(center, &region);
              return py::make_tuple(ms, py::array_t<std::int32_t>(static_cast<py::ssize_t>(region.size()), region.data()));
            },
            py::arg("center"), "(StateMeasures, region per particle: 0 inside, 1 buffer, 2 elsewhere)")
-      .def("save_checkpoint", &Simulation::save_checkpoint, py::arg("path"), py::arg("extra") = std::string())
+      .def("save_checkpoint",
+           [](PySimulation& s, const std::filesystem::path& path, const std::string& extra) {
+             auto held = s.lock.hold();
+             py::gil_scoped_release release;
+             s.object->save_checkpoint(path, extra);
+           },
+           py::arg("path"), py::arg("extra") = std::string())
       .def("load_checkpoint",
-           [](Simulation& s, const std::filesystem::path& path) {
+           [](PySimulation& s, const std::filesystem::path& path) {
+             auto held = s.lock.hold();
              std::string extra;
-             s.load_checkpoint(path, &extra);
+             {
+               py::gil_scoped_release release;
+               s.object->load_checkpoint(path, &extra);
+             }
              return extra;
            },
            py::arg("path"), "Restores the state (bit for bit); returns the caller's extra string.");
@@ -914,20 +1076,25 @@ PYBIND11_MODULE(_otfp, m) {
          "Decay rate of exp(-lam t) under the time scheme alone (TimeScheme or ExplicitScheme, or its name).");
 
   // ---- the command-line tool's configurations
-  py::class_<app::ConfiguredRun>(m, "ConfiguredRun", "A TOML configuration of `otfp run`, with its derived numbers.")
+  // run() steps the configuration's own Simulation: runs from several
+  // threads take turns (the rest reads what the constructor fixed).
+  using PyConfiguredRun = Locked<app::ConfiguredRun>;
+  py::class_<PyConfiguredRun>(m, "ConfiguredRun", "A TOML configuration of `otfp run`, with its derived numbers.")
       .def_property_readonly("description",
-                             [](const app::ConfiguredRun& r) { return json_to_dict(r.describe()); },
+                             [](const PyConfiguredRun& r) { return json_to_dict(r.object->describe()); },
                              "{'config': the resolved keys, 'derived': dt, n_steps, M_inf, ...}")
-      .def_property_readonly("dt", [](const app::ConfiguredRun& r) { return r.derived().dt; })
-      .def_property_readonly("n_steps", [](const app::ConfiguredRun& r) { return r.derived().n_steps; })
-      .def_property_readonly("t_end", [](const app::ConfiguredRun& r) { return r.config().run.t_end; })
-      .def_property_readonly("M_inf", [](const app::ConfiguredRun& r) { return r.derived().M_inf; })
-      .def_property_readonly("center", [](const app::ConfiguredRun& r) { return r.derived().center; })
-      .def_property_readonly("domain", [](const app::ConfiguredRun& r) { return mutable_domain(r.domain_ptr()); })
-      .def("make_simulation", [](const app::ConfiguredRun& r) { return r.make_simulation(); },
+      .def_property_readonly("dt", [](const PyConfiguredRun& r) { return r.object->derived().dt; })
+      .def_property_readonly("n_steps", [](const PyConfiguredRun& r) { return r.object->derived().n_steps; })
+      .def_property_readonly("t_end", [](const PyConfiguredRun& r) { return r.object->config().run.t_end; })
+      .def_property_readonly("M_inf", [](const PyConfiguredRun& r) { return r.object->derived().M_inf; })
+      .def_property_readonly("center", [](const PyConfiguredRun& r) { return r.object->derived().center; })
+      .def_property_readonly("domain", [](const PyConfiguredRun& r) { return mutable_domain(r.object->domain_ptr()); })
+      .def("make_simulation",
+           [](const PyConfiguredRun& r) { return std::make_unique<PySimulation>(r.object->make_simulation()); },
            "A started Simulation as `otfp run` builds it: advance_to(k * dt) reproduces the CLI's steps bit for bit.")
       .def("run",
-           [](app::ConfiguredRun& r, const std::filesystem::path& out_dir, bool progress, bool overwrite) {
+           [](PyConfiguredRun& r, const std::filesystem::path& out_dir, bool progress, bool overwrite) {
+             auto held = r.lock.hold();
              app::RunOptions o;
              o.out_dir = out_dir;
              o.progress = progress;
@@ -943,7 +1110,7 @@ PYBIND11_MODULE(_otfp, m) {
                          app::prepare_out_dir(out_dir, /*resume=*/false, overwrite, lock, "overwrite=True");
                      !why.empty())
                    throw OutputDirError("out_dir = \"" + escaped(out_dir.string()) + "\": " + escaped(why));
-               res = r.run(o);
+               res = r.object->run(o);
              }
              py::dict d;
              d["status"] = res.status;
@@ -959,7 +1126,8 @@ PYBIND11_MODULE(_otfp, m) {
            "run holds its lock.");
   m.def("load_config",
         [](const std::filesystem::path& path, const std::vector<std::string>& overrides) {
-          return std::make_unique<app::ConfiguredRun>(app::parse_config_file(path, overrides));
+          return std::make_unique<PyConfiguredRun>(
+              std::make_unique<app::ConfiguredRun>(app::parse_config_file(path, overrides)));
         },
         py::arg("path"), py::arg("overrides") = std::vector<std::string>{},
         "Reads a TOML configuration (overrides: 'key=value' as --set) and derives (36)-(40); ConfigError names the key.");
