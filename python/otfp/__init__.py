@@ -18,6 +18,31 @@ from . import _otfp
 __all__ = [name for name in dir(_otfp) if not name.startswith("_")]
 
 
+def _is_int(v):
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+# The bounds of the C++ integer types, as messages spell them.
+_INT_BOUNDS_HI = ((2**64 - 1, "2**64 - 1"), (2**63 - 1, "2**63 - 1"), (2**32 - 1, "2**32 - 1"), (2**31 - 1, "2**31 - 1"))
+_INT_BOUNDS_LO = ((-2**63, "-2**63"), (-2**31, "-2**31"), (0, "0"))
+
+
+def _int_range(cls, base_setattr, key):
+    """The range of an integer field: the widest bounds its C++ type accepts (tried on a fresh object)."""
+    probe = cls()
+
+    def accepts(v):
+        try:
+            base_setattr(probe, key, v)
+            return True
+        except TypeError:
+            return False
+
+    hi = next((text for v, text in _INT_BOUNDS_HI if accepts(v)), "?")
+    lo = next((text for v, text in _INT_BOUNDS_LO if accepts(v)), "?")
+    return lo, hi
+
+
 def _options_init(cls):
     """Gives an options class keyword arguments, validation and a readable repr."""
     base_init = cls.__init__
@@ -36,6 +61,9 @@ def _options_init(cls):
                 value = type(current)(value)  # an enum by its name: the library's message
             base_setattr(self, key, value)
         except (TypeError, ValueError) as e:
+            if isinstance(e, TypeError) and _is_int(value) and _is_int(current):
+                lo, hi = _int_range(cls, base_setattr, key)  # out of the C++ type's range
+                raise ValueError(f"{cls.__name__}.{key} = {value}: must be an integer in {lo} .. {hi}") from None
             if isinstance(e, TypeError):  # pybind11's overload listing: say it in one line
                 raise ValueError(f"{cls.__name__}.{key} = {value!r}: expected {type(current).__name__}, "
                                  f"got {type(value).__name__}") from None

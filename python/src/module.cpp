@@ -20,6 +20,8 @@
 #include <pybind11/stl.h>
 #include <pybind11/stl/filesystem.h>
 
+#include <fmt/format.h>
+
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -57,30 +59,114 @@ namespace {
 
 using DoubleArray = py::array_t<double, py::array::c_style | py::array::forcecast>;
 
-// (n, k) with 1 <= k <= 3 (or a single point of k values) -> n points padded with zeros.
-std::vector<Vec3> points_from(const DoubleArray& a, const char* name) {
+// A number in messages: the shortest form that reads back (0, 0.45, nan, inf).
+std::string num(double v) { return fmt::format("{}", v); }
+std::string shape_of(const py::array& a) {
+  std::string out = "(";
+  for (py::ssize_t k = 0; k < a.ndim(); ++k) out += (k ? ", " : "") + std::to_string(a.shape(k));
+  return out + (a.ndim() == 1 ? ",)" : ")");
+}
+
+// Any array-like of real numbers as a C-ordered double array. numpy would
+// cast complex values to real with only a warning, and strings fail later
+// with pybind11's overload listing: both are refused here, naming the field.
+DoubleArray real_array(const py::handle& obj, const std::string& name) {
+  py::array a = py::array::ensure(obj);
+  if (!a) throw InvalidArgument(name + ": must be an array of real numbers");
+  const char kind = a.dtype().kind();
+  const std::string dtype = py::str(a.dtype()).cast<std::string>();
+  if (kind == 'c') throw InvalidArgument(name + ": complex values (dtype " + dtype + "): must be real");
+  if (kind != 'b' && kind != 'i' && kind != 'u' && kind != 'f')
+    throw InvalidArgument(name + ": dtype " + dtype + ": must be real numbers");
+  return DoubleArray::ensure(a);
+}
+
+// (n, k) with 1 <= k <= 3 (or a single point of k values) -> n points padded
+// with zeros. Every coordinate finite; coordinates beyond `dim` must be 0
+// (the (n, 3) positions of a 2-D set), not dropped silently.
+std::vector<Vec3> points_from(const py::handle& obj, const char* name, int dim = 3) {
+  const DoubleArray a = real_array(obj, name);
   std::vector<Vec3> out;
+  auto point = [&](py::ssize_t i, const Vec3& v, py::ssize_t k_used) {
+    if (!v.allFinite())
+      throw InvalidArgument(std::string(name) + (a.ndim() == 1 ? "" : ": row " + std::to_string(i)) + " = (" +
+                            num(v[0]) + ", " + num(v[1]) + ", " + num(v[2]) + "): must be finite");
+    for (py::ssize_t k = dim; k < k_used; ++k)
+      if (v[k] != 0.0)
+        throw InvalidArgument(
+            a.ndim() == 1
+                ? std::string(name) + ": " + std::to_string(k_used) + " coordinates for a dim = " +
+                      std::to_string(dim) + " set: coordinate " + std::to_string(k) + " must be 0 (is " + num(v[k]) +
+                      ")"
+                : std::string(name) + ": shape " + shape_of(a) + " for a dim = " + std::to_string(dim) +
+                      " set: column " + std::to_string(k) + " must be 0 (row " + std::to_string(i) + " has " +
+                      num(v[k]) + "); give (n, " + std::to_string(dim) + ") positions");
+  };
   if (a.ndim() == 1) {
     if (a.shape(0) < 1 || a.shape(0) > 3)
       throw InvalidArgument(std::string(name) + ": a point has 1 to 3 coordinates, got " + std::to_string(a.shape(0)));
     Vec3 v = Vec3::Zero();
     for (py::ssize_t k = 0; k < a.shape(0); ++k) v[k] = a.at(k);
+    point(0, v, a.shape(0));
     out.push_back(v);
     return out;
   }
   if (a.ndim() != 2 || a.shape(1) < 1 || a.shape(1) > 3)
-    throw InvalidArgument(std::string(name) + ": must be an array of shape (n, d) with d = 1, 2 or 3");
+    throw InvalidArgument(std::string(name) + ": shape " + shape_of(a) +
+                          ": must be an array of shape (n, d) with d = 1, 2 or 3");
   const auto r = a.unchecked<2>();
   out.assign(static_cast<std::size_t>(a.shape(0)), Vec3::Zero());
-  for (py::ssize_t i = 0; i < a.shape(0); ++i)
-    for (py::ssize_t k = 0; k < a.shape(1); ++k) out[static_cast<std::size_t>(i)][k] = r(i, k);
+  for (py::ssize_t i = 0; i < a.shape(0); ++i) {
+    Vec3& v = out[static_cast<std::size_t>(i)];
+    for (py::ssize_t k = 0; k < a.shape(1); ++k) v[k] = r(i, k);
+    point(i, v, a.shape(1));
+  }
   return out;
 }
 
-std::vector<double> values_from(const DoubleArray& a, std::size_t n, const char* name) {
+// n values, each finite (and > 0 when `positive`: widths, masses).
+std::vector<double> values_from(const py::handle& obj, std::size_t n, const char* name, bool positive) {
+  const DoubleArray a = real_array(obj, name);
   if (a.ndim() != 1 || static_cast<std::size_t>(a.shape(0)) != n)
-    throw InvalidArgument(std::string(name) + ": must be a 1-D array of " + std::to_string(n) + " values");
-  return std::vector<double>(a.data(), a.data() + n);
+    throw InvalidArgument(std::string(name) + ": shape " + shape_of(a) + ": must be a 1-D array of " +
+                          std::to_string(n) + " values");
+  std::vector<double> out(a.data(), a.data() + n);
+  for (std::size_t i = 0; i < n; ++i)
+    if (!std::isfinite(out[i]) || (positive && !(out[i] > 0.0)))
+      throw InvalidArgument(std::string(name) + ": row " + std::to_string(i) + " = " + num(out[i]) +
+                            (positive ? ": must be finite and > 0" : ": must be finite"));
+  return out;
+}
+
+// A set handed to a stepper or a Simulation: its arrays may have been
+// written through the views, so a NaN there is bad input of this call (not
+// a step that diverged later).
+void check_particles(const ParticleSet& ps, const char* name) {
+  const std::string set(name);
+  auto where = [&](std::size_t p) {
+    return ": row " + std::to_string(p) + " (id " + std::to_string(ps.ids()[p]) + ")";
+  };
+  for (std::size_t p = 0; p < ps.size(); ++p) {
+    const Vec3& x = ps.positions()[p];
+    if (!x.allFinite())
+      throw InvalidArgument(set + ".positions" + where(p) + " = (" + num(x[0]) + ", " + num(x[1]) + ", " + num(x[2]) +
+                            "): must be finite");
+    if (!(std::isfinite(ps.widths()[p]) && ps.widths()[p] > 0.0))
+      throw InvalidArgument(set + ".widths" + where(p) + " = " + num(ps.widths()[p]) + ": must be finite and > 0");
+    if (!(std::isfinite(ps.masses()[p]) && ps.masses()[p] > 0.0))
+      throw InvalidArgument(set + ".masses" + where(p) + " = " + num(ps.masses()[p]) + ": must be finite and > 0");
+    if (!std::isfinite(ps.birth_times()[p]))
+      throw InvalidArgument(set + ".birth_times" + where(p) + " = " + num(ps.birth_times()[p]) + ": must be finite");
+  }
+}
+
+// A seed: any Python int in the range of the library's 64-bit unsigned seed.
+std::uint64_t seed_from(const py::int_& v) {
+  try {
+    return v.cast<std::uint64_t>();
+  } catch (const py::cast_error&) {
+    throw InvalidArgument("seed = " + std::string(py::str(py::handle(v))) + ": must be an integer in 0 .. 2**64 - 1");
+  }
 }
 
 py::array_t<double> points_to(const std::vector<Vec3>& x) {
@@ -262,9 +348,9 @@ PyDomain mutable_domain(const DomainPtr& d) { return std::const_pointer_cast<Dom
 
 // A scalar for one point (1-D input), else an array over the points.
 template <class F>
-py::object per_point(const DoubleArray& a, F f) {
-  const std::vector<Vec3> x = points_from(a, "points");
-  if (a.ndim() == 1) return py::cast(f(x[0]));
+py::object per_point(const py::object& points, F f) {
+  const std::vector<Vec3> x = points_from(points, "points");
+  if (real_array(points, "points").ndim() == 1) return py::cast(f(x[0]));
   using R = decltype(f(x[0]));
   if constexpr (std::is_same_v<R, Vec3>) {
     std::vector<Vec3> out(x.size());
@@ -307,22 +393,22 @@ class PyFunctional {
   PyFunctional(int dim, const FunctionalOptions& options, const PyDomain& domain, double barrier_stiffness)
       : functional_(dim, options, make_barrier(domain, barrier_stiffness), periodicity_of(domain, dim)) {}
 
-  void set_reference(const DoubleArray& x, const DoubleArray& s, const DoubleArray& m) {
+  void set_reference(const py::object& x, const py::object& s, const py::object& m) {
     auto held = lock_.hold();
     x_ref_ = points_from(x, "x_ref");
     const std::size_t n = x_ref_.size();
-    s_ref_ = values_from(s, n, "s_ref");
-    functional_.set_reference(x_ref_, s_ref_, values_from(m, n, "masses"));
+    s_ref_ = values_from(s, n, "s_ref", true);
+    functional_.set_reference(x_ref_, s_ref_, values_from(m, n, "masses", true));
     has_reference_ = true;
   }
 
-  py::dict evaluate(const DoubleArray& x, const DoubleArray& s, bool all_pairs) {
+  py::dict evaluate(const py::object& x, const py::object& s, bool all_pairs) {
     auto held = lock_.hold();
     if (!has_reference_) throw InvalidArgument("Functional.evaluate: call set_reference() first");
     const std::vector<Vec3> xv = points_from(x, "x");
     if (xv.size() != x_ref_.size())
       throw InvalidArgument("x: must have the reference's " + std::to_string(x_ref_.size()) + " rows");
-    const std::vector<double> sv = values_from(s, xv.size(), "s");
+    const std::vector<double> sv = values_from(s, xv.size(), "s", true);
     Gradient g;
     g.resize(xv.size(), functional_.options().optimise_widths);
     FunctionalParts parts;
@@ -448,7 +534,7 @@ PYBIND11_MODULE(_otfp, m) {
 
   // ---- random numbers
   py::class_<Rng>(m, "Rng", "xoshiro256** seeded by SplitMix64: the same seed gives the same stream everywhere.")
-      .def(py::init<std::uint64_t>(), py::arg("seed") = 0x5eed)
+      .def(py::init([](const py::int_& seed) { return Rng(seed_from(seed)); }), py::arg("seed") = 0x5eed)
       .def("uniform", py::overload_cast<>(&Rng::uniform))
       .def("normal", &Rng::normal);
 
@@ -457,10 +543,11 @@ PYBIND11_MODULE(_otfp, m) {
                           "Gaussian blobs in d = 1, 2, 3. positions (n, 3), widths s = beta^-1/2, masses, "
                           "birth_times and ids are numpy views of the set's storage.")
       .def(py::init<int>(), py::arg("dim") = 3)
-      .def(py::init([](int dim, const DoubleArray& x, const DoubleArray& s, const DoubleArray& mass) {
-             const std::vector<Vec3> xv = points_from(x, "positions");
-             const std::vector<double> sv = values_from(s, xv.size(), "widths");
-             const std::vector<double> mv = values_from(mass, xv.size(), "masses");
+      .def(py::init([](int dim, const py::object& x, const py::object& s, const py::object& mass) {
+             require(dim >= 1 && dim <= 3, "dim", dim, "must be 1, 2 or 3");
+             const std::vector<Vec3> xv = points_from(x, "positions", dim);
+             const std::vector<double> sv = values_from(s, xv.size(), "widths", true);
+             const std::vector<double> mv = values_from(mass, xv.size(), "masses", true);
              ParticleSet ps(dim);
              ps.reserve(xv.size());
              for (std::size_t i = 0; i < xv.size(); ++i) ps.add(xv[i], sv[i], mv[i]);
@@ -511,13 +598,21 @@ PYBIND11_MODULE(_otfp, m) {
         return values_to(b);
       }, "beta = 1 / s^2 per particle (a new array)")
       .def("add",
-           [](ParticleSet& ps, const DoubleArray& x, double width_s, double mass, double birth_time) {
-             require_no_views(ps, "ParticleSet.add");
+           [](ParticleSet& ps, const py::object& x, double width_s, double mass, double birth_time) {
+             // One point: a 2-D array is refused rather than cut to its first row.
+             if (const DoubleArray a = real_array(x, "x"); a.ndim() != 1)
+               throw InvalidArgument("x: shape " + shape_of(a) +
+                                     ": add() takes one point (1 to 3 coordinates); for many particles build "
+                                     "ParticleSet(dim, positions, widths, masses)");
+             const Vec3 point = points_from(x, "x", ps.dim()).at(0);
              require(std::isfinite(width_s) && width_s > 0.0, "width_s", width_s, "must be finite and > 0");
              require(std::isfinite(mass) && mass > 0.0, "mass", mass, "must be finite and > 0");
-             return ps.add(points_from(x, "x").at(0), width_s, mass, birth_time);
+             if (!std::isfinite(birth_time)) throw InvalidArgument("birth_time = " + num(birth_time) + ": must be finite");
+             require_no_views(ps, "ParticleSet.add");
+             return ps.add(point, width_s, mass, birth_time);
            },
-           py::arg("x"), py::arg("width_s"), py::arg("mass"), py::arg("birth_time") = 0.0, "Appends one particle; returns its id.")
+           py::arg("x"), py::arg("width_s"), py::arg("mass"), py::arg("birth_time") = 0.0,
+           "Appends one particle (x: one point of 1 to 3 coordinates); returns its id.")
       .def("remove",
            [](ParticleSet& ps, std::size_t index) {
              require_no_views(ps, "ParticleSet.remove");
@@ -561,16 +656,16 @@ PYBIND11_MODULE(_otfp, m) {
         const Aabb b = d.bounding_box();
         return py::make_tuple(Vec3(b.lo), Vec3(b.hi));
       })
-      .def("signed_distance", [](const Domain& d, const DoubleArray& x) {
+      .def("signed_distance", [](const Domain& d, const py::object& x) {
         return per_point(x, [&](const Vec3& p) { return d.signed_distance(p); });
       }, py::arg("points"), "< 0 inside; a float for one point, else an array")
-      .def("closest_point", [](const Domain& d, const DoubleArray& x) {
+      .def("closest_point", [](const Domain& d, const py::object& x) {
         return per_point(x, [&](const Vec3& p) { return d.closest_point(p); });
       }, py::arg("points"))
-      .def("patch_id", [](const Domain& d, const DoubleArray& x) {
+      .def("patch_id", [](const Domain& d, const py::object& x) {
         return per_point(x, [&](const Vec3& p) { return d.patch_id(p); });
       }, py::arg("points"), "the patch of the closest boundary point")
-      .def("contains", [](const Domain& d, const DoubleArray& x) {
+      .def("contains", [](const Domain& d, const py::object& x) {
         return per_point(x, [&](const Vec3& p) { return d.contains(p); });
       }, py::arg("points"));
   m.def("make_ball", [](int dim, const Vec3& c, double r) { return mutable_domain(make_ball(dim, c, r)); },
@@ -715,8 +810,8 @@ PYBIND11_MODULE(_otfp, m) {
   m.def("default_max_particles", &default_max_particles,
         "Half the machine's memory over 2.5 KB per particle: what SimulationOptions.max_particles = 0 means.");
   m.def("fill_particles",
-        [](const PyDomain& domain, const FillOptions& o, std::uint64_t seed) {
-          Rng rng(seed);
+        [](const PyDomain& domain, const FillOptions& o, const py::int_& seed) {
+          Rng rng(seed_from(seed));
           return fill_particles(*domain, o, rng);
         },
         py::arg("domain"), py::arg("options"), py::arg("seed") = 1);
@@ -839,6 +934,7 @@ PYBIND11_MODULE(_otfp, m) {
            py::arg("dim") = py::none())
       .def("step",
            [](PyImplicitStepper& st, ParticleSet& ps, double dt, double max_error) {
+             check_particles(ps, "particles");
              auto held = st.lock.hold();
              return on_copy(ps, [&](ParticleSet& w) { return st.object->step(w, dt, max_error); });
            },
@@ -865,6 +961,7 @@ PYBIND11_MODULE(_otfp, m) {
            py::arg("dim") = py::none())
       .def("step",
            [](PyExplicitStepper& st, ParticleSet& ps, double dt) {
+             check_particles(ps, "particles");
              auto held = st.lock.hold();
              return on_copy(ps, [&](ParticleSet& w) { return st.object->step(w, dt); });
            },
@@ -882,6 +979,7 @@ PYBIND11_MODULE(_otfp, m) {
            py::arg("domain"), py::arg("boundary"), py::arg("options"))
       .def("start",
            [](PySimulation& s, const ParticleSet& ps, double t0) {
+             check_particles(ps, "particles");
              auto held = s.lock.hold();
              s.object->start(ps, t0);
            },
@@ -916,7 +1014,16 @@ PYBIND11_MODULE(_otfp, m) {
                obs = [&observer, &s](const Simulation&, const SimulationStep& step) {
                  py::gil_scoped_acquire acquire;
                  py::object r = observer(py::cast(s, py::return_value_policy::reference), py::cast(step));
-                 if (!r.is_none() && !r.cast<bool>()) throw StopRequested{};
+                 if (r.is_none()) return;
+                 // True/False (numpy's bool too); anything else is a mistake, not a truth value.
+                 const bool is_bool = py::isinstance<py::bool_>(r) ||
+                                      py::isinstance(r, py::module_::import("numpy").attr("bool_"));
+                 if (!is_bool)
+                   throw py::type_error("observer returned " +
+                                        py::str(py::type::of(r).attr("__name__")).cast<std::string>() +
+                                        ": an observer must return None or True (go on) or False (stop after this "
+                                        "step)");
+                 if (!r.cast<bool>()) throw StopRequested{};
                };
              try {
                py::gil_scoped_release release;
