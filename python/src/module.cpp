@@ -332,7 +332,9 @@ void bind_enum(py::module_& m, const char* name, std::initializer_list<std::pair
   py::enum_<E> e(m, name);
   for (const auto& [n, v] : values) e.value(n, v);
   e.def(py::init([from_string](const std::string& s) { return from_string(s); }));
-  e.def("__str__", [](E v) { return to_string(v); });
+  // Replaces enum_'s __str__ ("PatchKind.Dirichlet"): def() would add an
+  // overload behind it that is never reached.
+  e.attr("__str__") = py::cpp_function([](E v) { return to_string(v); }, py::name("__str__"), py::is_method(e));
   py::implicitly_convertible<py::str, E>();
 }
 
