@@ -14,18 +14,20 @@ import time
 import otfp
 
 
-def sphere(n_inf, treatment_options):
+def sphere(n_inf, implicit_options):
     ball = otfp.make_ball(3, [0, 0, 0], 1.0)
     g = 1.0
     pp = otfp.paper_parameters(ball.volume, n_inf, 3, length_L=1.0, kappa=1.0)  # (36)-(40)
-    implicit = otfp.ImplicitOptions(kappa=1.0, **treatment_options)
-    opts = otfp.SimulationOptions(
-        particle_mass=g * ball.volume / n_inf, width_s=pp.width_s, barrier_stiffness=pp.barrier_C,
-        implicit=implicit,
-        # The converging boundary treatment (docs/boundaries.md): a reservoir band one cut-off wide.
-        projection=dict(layer_b=pp.layer_b, dirichlet_mode="reservoir", reservoir_profile="odd",
-                        reservoir_thickness=otfp.cutoff_radius(pp.width_s, implicit.neighbor.kernel_tolerance)))
-    sim = otfp.Simulation(ball, [otfp.BoundaryData(patch=0, kind="dirichlet", value=g)], opts)
+    boundary = [otfp.BoundaryData(patch=0, kind="dirichlet", value=g)]
+    # The converging boundary treatment of `otfp run` (docs/boundaries.md): a
+    # reservoir band one cut-off wide. SimulationOptions() alone would be the
+    # papers' layer, which does not converge to Crank.
+    opts = otfp.converging_options(ball, boundary, n_inf=n_inf, length_L=1.0, particle_mass=g * ball.volume / n_inf)
+    implicit = opts.implicit
+    for key, value in implicit_options.items():
+        setattr(implicit, key, value)
+    opts.implicit = implicit
+    sim = otfp.Simulation(ball, boundary, opts)
     sim.start(otfp.ParticleSet(3))
     return sim, pp, g * ball.volume
 

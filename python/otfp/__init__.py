@@ -3,12 +3,15 @@
 The C++ library bound with pybind11 (docs/python.md). A first program:
 
     import otfp
-    run = otfp.load_config("examples/sphere_dirichlet.toml", ["run.t_end=0.1"])
+    run = otfp.load_config(otfp.example_config("sphere_dirichlet.toml"), ["run.t_end=0.1"])
     sim = run.make_simulation()
     sim.run_until(run.t_end, run.dt, lambda s, step: print(step))
 
 Options classes take keyword arguments and check them at once:
 ImplicitOptions(kappa=-1) raises ValueError naming the field.
+
+A SimulationOptions built by hand has the papers' boundary treatment;
+converging_options(...) gives the one `otfp run` uses (docs/python.md).
 """
 
 from ._otfp import *  # noqa: F401,F403
