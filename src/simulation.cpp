@@ -34,6 +34,15 @@ void append(std::string& out, double v) {
   const auto r = std::to_chars(buf, buf + sizeof(buf), v);
   out.append(buf, r.ptr);
 }
+// A double for people: six significant digits (printf's %.6g).
+struct Sig6 {
+  double v;
+};
+void append(std::string& out, Sig6 v) {
+  char buf[64];
+  const auto r = std::to_chars(buf, buf + sizeof(buf), v.v, std::chars_format::general, 6);
+  out.append(buf, r.ptr);
+}
 void append(std::string& out, const std::string& v) { out += v; }
 void append(std::string& out, const char* v) { out += v; }
 void append(std::string& out, char v) { out += v; }
@@ -440,8 +449,9 @@ void Simulation::check_ledger(std::int64_t k, double t) const {
 }
 
 std::string SimulationStep::brief_report() const {
-  return format("step {}: t = {} (dt = {}), F = {}, {} evaluations, +{} -{} particles", step, t_end, dt(),
-                diffusion.f_after, diffusion.evaluations, inserted, removed);
+  // Six significant digits: a report for people (t = 0.1 + 0.2 reads 0.3).
+  return format("step {}: t = {} (dt = {}), F = {}, {} evaluations, +{} -{} particles", step, Sig6{t_end}, Sig6{dt()},
+                Sig6{diffusion.f_after}, diffusion.evaluations, inserted, removed);
 }
 
 std::string SimulationStep::full_report() const {

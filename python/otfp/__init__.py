@@ -3,12 +3,15 @@
 The C++ library bound with pybind11 (docs/python.md). A first program:
 
     import otfp
-    run = otfp.load_config("examples/sphere_dirichlet.toml", ["run.t_end=0.1"])
+    run = otfp.load_config(otfp.example_config("sphere_dirichlet.toml"), ["run.t_end=0.1"])
     sim = run.make_simulation()
     sim.run_until(run.t_end, run.dt, lambda s, step: print(step))
 
 Options classes take keyword arguments and check them at once:
 ImplicitOptions(kappa=-1) raises ValueError naming the field.
+
+A SimulationOptions built by hand has the papers' boundary treatment;
+converging_options(...) gives the one `otfp run` uses (docs/python.md).
 """
 
 from ._otfp import *  # noqa: F401,F403
@@ -16,6 +19,31 @@ from ._otfp import __version__, analytic  # noqa: F401
 from . import _otfp
 
 __all__ = [name for name in dir(_otfp) if not name.startswith("_")]
+
+
+def _is_int(v):
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+# The bounds of the C++ integer types, as messages spell them.
+_INT_BOUNDS_HI = ((2**64 - 1, "2**64 - 1"), (2**63 - 1, "2**63 - 1"), (2**32 - 1, "2**32 - 1"), (2**31 - 1, "2**31 - 1"))
+_INT_BOUNDS_LO = ((-2**63, "-2**63"), (-2**31, "-2**31"), (0, "0"))
+
+
+def _int_range(cls, base_setattr, key):
+    """The range of an integer field: the widest bounds its C++ type accepts (tried on a fresh object)."""
+    probe = cls()
+
+    def accepts(v):
+        try:
+            base_setattr(probe, key, v)
+            return True
+        except TypeError:
+            return False
+
+    hi = next((text for v, text in _INT_BOUNDS_HI if accepts(v)), "?")
+    lo = next((text for v, text in _INT_BOUNDS_LO if accepts(v)), "?")
+    return lo, hi
 
 
 def _options_init(cls):
@@ -36,6 +64,9 @@ def _options_init(cls):
                 value = type(current)(value)  # an enum by its name: the library's message
             base_setattr(self, key, value)
         except (TypeError, ValueError) as e:
+            if isinstance(e, TypeError) and _is_int(value) and _is_int(current):
+                lo, hi = _int_range(cls, base_setattr, key)  # out of the C++ type's range
+                raise ValueError(f"{cls.__name__}.{key} = {value}: must be an integer in {lo} .. {hi}") from None
             if isinstance(e, TypeError):  # pybind11's overload listing: say it in one line
                 raise ValueError(f"{cls.__name__}.{key} = {value!r}: expected {type(current).__name__}, "
                                  f"got {type(value).__name__}") from None
@@ -68,3 +99,65 @@ for _name in dir(_otfp):
     if isinstance(_obj, type) and hasattr(_obj, "_fields"):
         _options_init(_obj)
 _options_init(analytic.SlabBox)
+
+
+def example_config(name):
+    """The path of a configuration of the repository's examples/ (e.g. "sphere_dirichlet.toml"), shipped with
+    the package so that programs run from any directory: otfp.load_config(otfp.example_config(name))."""
+    import pathlib
+
+    here = pathlib.Path(__file__).resolve().parent / "examples"
+    path = here / name
+    if not path.is_file():
+        have = ", ".join(sorted(p.name for p in here.glob("*.toml"))) or "none"
+        raise ValueError(f"example_config: no configuration '{name}' (shipped: {have})")
+    return path
+
+
+def converging_options(domain, boundary, n_inf, length_L, particle_mass, kappa=1.0, rho_ref=1.0,
+                       stepper="implicit", kernel_tolerance=None):
+    """SimulationOptions with the boundary treatment and parameters of `otfp run`'s default preset,
+    treatment.preset = "converging" (docs/boundaries.md): image blobs at no-flux walls, the odd reservoir band
+    one kernel cut-off wide outside Dirichlet faces, outlets that reach the nearest particles, and (36)-(40)
+    from the true spacing (|Omega| / n_inf)^(1/d). SimulationOptions() alone is the papers' treatment
+    (the b-thick Dirichlet layer), which does not converge to the analytic references (docs/validation.md).
+
+    domain, boundary: as for Simulation (the reservoir is used when a patch is Dirichlet); n_inf: the particle
+    count the spacing is for; length_L: L of the layer b = sqrt(L dr); particle_mass: m_p (the configuration's
+    M_inf / n_inf). time_control, seed and max_particles stay the library's defaults (the command line sets
+    them from its run section). Returns a new SimulationOptions to adjust further."""
+    import math
+
+    pp = paper_parameters(domain.volume, n_inf, domain.dim, length_L=length_L, kappa=kappa)  # (36)-(40), cube rule
+    neighbor = NeighborOptions()
+    if kernel_tolerance is not None:
+        neighbor.kernel_tolerance = kernel_tolerance
+    neighbor.skin = -1.0
+    neighbor.skin_factor = ImplicitOptions().neighbor.skin_factor  # the command line's solver.skin_factor
+    opts = SimulationOptions()
+    opts.particle_mass = particle_mass
+    opts.width_s = pp.width_s
+    opts.barrier_stiffness = pp.barrier_C  # solver.barrier_factor = 1: C = 1 / dt_explicit
+    opts.no_flux = "images"
+    opts.fill_reservoir_at_start = True
+    opts.stepper = stepper
+    projection = opts.projection
+    projection.layer_b = pp.layer_b
+    projection.neumann_outflow = "nearest_particles"
+    if any(str(b.kind) == "dirichlet" for b in boundary):
+        r_c = cutoff_radius(pp.width_s, neighbor.kernel_tolerance)  # treatment.reservoir_width = 1 cut-off
+        projection.dirichlet_mode = "reservoir"
+        projection.reservoir_thickness = r_c
+        projection.reservoir_sublayers = max(1, math.floor(2.0 * r_c / pp.dr + 0.5))  # about half a spacing each
+        projection.reservoir_profile = "odd"
+    opts.projection = projection
+    if str(opts.stepper) == "implicit":
+        implicit = opts.implicit
+        implicit.kappa, implicit.rho_ref, implicit.neighbor = kappa, rho_ref, neighbor
+        implicit.nominal_width = pp.width_s
+        opts.implicit = implicit
+    else:
+        explicit = opts.explicit_options
+        explicit.kappa, explicit.rho_ref, explicit.neighbor = kappa, rho_ref, neighbor
+        opts.explicit_options = explicit
+    return opts

@@ -3,6 +3,11 @@
 // diagnostics and analytic references, and the command-line tool's TOML
 // configurations. docs/python.md describes the API.
 //
+// Threads: every object whose methods release the GIL (Simulation, the
+// steppers, Functional, ConfiguredRun.run, and a ParticleSet while a stepper
+// works on it) serialises them with a lock of its own (ObjectLock below), so
+// that threads sharing an object take turns instead of racing.
+//
 // Arrays: a ParticleSet's positions, widths, masses, birth times and ids are
 // numpy views of its own storage (no copy); while a view is alive the set
 // refuses to change size or order (BufferError, as bytearray does), because
@@ -15,9 +20,12 @@
 #include <pybind11/stl.h>
 #include <pybind11/stl/filesystem.h>
 
+#include <fmt/format.h>
+
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -39,6 +47,7 @@
 #include "otfp/time_step_control.hpp"
 #include "otfp/types.hpp"
 #include "otfp_app/config.hpp"
+#include "otfp_app/out_dir.hpp"
 #include "otfp_app/simulation.hpp"
 
 namespace py = pybind11;
@@ -50,30 +59,114 @@ namespace {
 
 using DoubleArray = py::array_t<double, py::array::c_style | py::array::forcecast>;
 
-// (n, k) with 1 <= k <= 3 (or a single point of k values) -> n points padded with zeros.
-std::vector<Vec3> points_from(const DoubleArray& a, const char* name) {
+// A number in messages: the shortest form that reads back (0, 0.45, nan, inf).
+std::string num(double v) { return fmt::format("{}", v); }
+std::string shape_of(const py::array& a) {
+  std::string out = "(";
+  for (py::ssize_t k = 0; k < a.ndim(); ++k) out += (k ? ", " : "") + std::to_string(a.shape(k));
+  return out + (a.ndim() == 1 ? ",)" : ")");
+}
+
+// Any array-like of real numbers as a C-ordered double array. numpy would
+// cast complex values to real with only a warning, and strings fail later
+// with pybind11's overload listing: both are refused here, naming the field.
+DoubleArray real_array(const py::handle& obj, const std::string& name) {
+  py::array a = py::array::ensure(obj);
+  if (!a) throw InvalidArgument(name + ": must be an array of real numbers");
+  const char kind = a.dtype().kind();
+  const std::string dtype = py::str(a.dtype()).cast<std::string>();
+  if (kind == 'c') throw InvalidArgument(name + ": complex values (dtype " + dtype + "): must be real");
+  if (kind != 'b' && kind != 'i' && kind != 'u' && kind != 'f')
+    throw InvalidArgument(name + ": dtype " + dtype + ": must be real numbers");
+  return DoubleArray::ensure(a);
+}
+
+// (n, k) with 1 <= k <= 3 (or a single point of k values) -> n points padded
+// with zeros. Every coordinate finite; coordinates beyond `dim` must be 0
+// (the (n, 3) positions of a 2-D set), not dropped silently.
+std::vector<Vec3> points_from(const py::handle& obj, const char* name, int dim = 3) {
+  const DoubleArray a = real_array(obj, name);
   std::vector<Vec3> out;
+  auto point = [&](py::ssize_t i, const Vec3& v, py::ssize_t k_used) {
+    if (!v.allFinite())
+      throw InvalidArgument(std::string(name) + (a.ndim() == 1 ? "" : ": row " + std::to_string(i)) + " = (" +
+                            num(v[0]) + ", " + num(v[1]) + ", " + num(v[2]) + "): must be finite");
+    for (py::ssize_t k = dim; k < k_used; ++k)
+      if (v[k] != 0.0)
+        throw InvalidArgument(
+            a.ndim() == 1
+                ? std::string(name) + ": " + std::to_string(k_used) + " coordinates for a dim = " +
+                      std::to_string(dim) + " set: coordinate " + std::to_string(k) + " must be 0 (is " + num(v[k]) +
+                      ")"
+                : std::string(name) + ": shape " + shape_of(a) + " for a dim = " + std::to_string(dim) +
+                      " set: column " + std::to_string(k) + " must be 0 (row " + std::to_string(i) + " has " +
+                      num(v[k]) + "); give (n, " + std::to_string(dim) + ") positions");
+  };
   if (a.ndim() == 1) {
     if (a.shape(0) < 1 || a.shape(0) > 3)
       throw InvalidArgument(std::string(name) + ": a point has 1 to 3 coordinates, got " + std::to_string(a.shape(0)));
     Vec3 v = Vec3::Zero();
     for (py::ssize_t k = 0; k < a.shape(0); ++k) v[k] = a.at(k);
+    point(0, v, a.shape(0));
     out.push_back(v);
     return out;
   }
   if (a.ndim() != 2 || a.shape(1) < 1 || a.shape(1) > 3)
-    throw InvalidArgument(std::string(name) + ": must be an array of shape (n, d) with d = 1, 2 or 3");
+    throw InvalidArgument(std::string(name) + ": shape " + shape_of(a) +
+                          ": must be an array of shape (n, d) with d = 1, 2 or 3");
   const auto r = a.unchecked<2>();
   out.assign(static_cast<std::size_t>(a.shape(0)), Vec3::Zero());
-  for (py::ssize_t i = 0; i < a.shape(0); ++i)
-    for (py::ssize_t k = 0; k < a.shape(1); ++k) out[static_cast<std::size_t>(i)][k] = r(i, k);
+  for (py::ssize_t i = 0; i < a.shape(0); ++i) {
+    Vec3& v = out[static_cast<std::size_t>(i)];
+    for (py::ssize_t k = 0; k < a.shape(1); ++k) v[k] = r(i, k);
+    point(i, v, a.shape(1));
+  }
   return out;
 }
 
-std::vector<double> values_from(const DoubleArray& a, std::size_t n, const char* name) {
+// n values, each finite (and > 0 when `positive`: widths, masses).
+std::vector<double> values_from(const py::handle& obj, std::size_t n, const char* name, bool positive) {
+  const DoubleArray a = real_array(obj, name);
   if (a.ndim() != 1 || static_cast<std::size_t>(a.shape(0)) != n)
-    throw InvalidArgument(std::string(name) + ": must be a 1-D array of " + std::to_string(n) + " values");
-  return std::vector<double>(a.data(), a.data() + n);
+    throw InvalidArgument(std::string(name) + ": shape " + shape_of(a) + ": must be a 1-D array of " +
+                          std::to_string(n) + " values");
+  std::vector<double> out(a.data(), a.data() + n);
+  for (std::size_t i = 0; i < n; ++i)
+    if (!std::isfinite(out[i]) || (positive && !(out[i] > 0.0)))
+      throw InvalidArgument(std::string(name) + ": row " + std::to_string(i) + " = " + num(out[i]) +
+                            (positive ? ": must be finite and > 0" : ": must be finite"));
+  return out;
+}
+
+// A set handed to a stepper or a Simulation: its arrays may have been
+// written through the views, so a NaN there is bad input of this call (not
+// a step that diverged later).
+void check_particles(const ParticleSet& ps, const char* name) {
+  const std::string set(name);
+  auto where = [&](std::size_t p) {
+    return ": row " + std::to_string(p) + " (id " + std::to_string(ps.ids()[p]) + ")";
+  };
+  for (std::size_t p = 0; p < ps.size(); ++p) {
+    const Vec3& x = ps.positions()[p];
+    if (!x.allFinite())
+      throw InvalidArgument(set + ".positions" + where(p) + " = (" + num(x[0]) + ", " + num(x[1]) + ", " + num(x[2]) +
+                            "): must be finite");
+    if (!(std::isfinite(ps.widths()[p]) && ps.widths()[p] > 0.0))
+      throw InvalidArgument(set + ".widths" + where(p) + " = " + num(ps.widths()[p]) + ": must be finite and > 0");
+    if (!(std::isfinite(ps.masses()[p]) && ps.masses()[p] > 0.0))
+      throw InvalidArgument(set + ".masses" + where(p) + " = " + num(ps.masses()[p]) + ": must be finite and > 0");
+    if (!std::isfinite(ps.birth_times()[p]))
+      throw InvalidArgument(set + ".birth_times" + where(p) + " = " + num(ps.birth_times()[p]) + ": must be finite");
+  }
+}
+
+// A seed: any Python int in the range of the library's 64-bit unsigned seed.
+std::uint64_t seed_from(const py::int_& v) {
+  try {
+    return v.cast<std::uint64_t>();
+  } catch (const py::cast_error&) {
+    throw InvalidArgument("seed = " + std::string(py::str(py::handle(v))) + ": must be an integer in 0 .. 2**64 - 1");
+  }
 }
 
 py::array_t<double> points_to(const std::vector<Vec3>& x) {
@@ -119,24 +212,84 @@ py::array view_of(py::object owner, const ParticleSet& set, T* data, std::vector
   return a;
 }
 
+// ------------------------------------------------------------------ threads
+
+// Serialises the methods of one bound object across threads. A thread waits
+// for it with the GIL released: the holder may need the GIL to finish (the
+// observer of run_until), so waiting with it would deadlock. Re-entrant, so
+// that an observer called under the lock may use its own simulation. Call
+// hold() with the GIL held (as every bound method is called).
+class ObjectLock {
+ public:
+  std::unique_lock<std::recursive_mutex> hold() {
+    std::unique_lock<std::recursive_mutex> lock(mutex_, std::try_to_lock);
+    if (!lock.owns_lock()) {
+      py::gil_scoped_release release;
+      lock.lock();
+    }
+    return lock;
+  }
+
+ private:
+  std::recursive_mutex mutex_;
+};
+
+// A library object and its lock (the library's classes cannot be moved, so
+// the object is held by pointer).
+template <class T>
+struct Locked {
+  explicit Locked(std::unique_ptr<T> o) : object(std::move(o)) {}
+  std::unique_ptr<T> object;
+  ObjectLock lock;
+};
+
+// The locks of the ParticleSets that a stepper is working on (guarded by the
+// GIL): a second step of the same set waits for the first, so neither result
+// is lost, and resizing the set meanwhile is refused.
+struct SetStep {
+  ObjectLock lock;
+  long users = 0;
+};
+std::unordered_map<const ParticleSet*, std::unique_ptr<SetStep>>& set_steps() {
+  static std::unordered_map<const ParticleSet*, std::unique_ptr<SetStep>> map;
+  return map;
+}
+
 void require_no_views(const ParticleSet& set, const char* what) {
   auto it = exports().find(&set);
   if (it != exports().end() && it->second > 0)
     throw py::buffer_error(std::string(what) + ": " + std::to_string(it->second) +
                            " numpy view(s) of this ParticleSet are alive and would be left pointing at freed "
                            "memory; delete them (or take copies with numpy.array(view)) first");
+  if (set_steps().count(&set))
+    throw py::buffer_error(std::string(what) +
+                           ": a stepper is stepping this ParticleSet in another thread; wait for its step first");
 }
 
 // Runs f on a copy of `set` and takes the result back without moving the
-// storage (the steppers reorder particles; views stay valid and see the result).
+// storage (the steppers reorder particles; views stay valid and see the
+// result). Steps of one set from several threads take turns.
 template <class F>
 auto on_copy(ParticleSet& set, F&& f) {
+  std::unique_ptr<SetStep>& entry = set_steps()[&set];
+  if (!entry) entry = std::make_unique<SetStep>();
+  SetStep* const step = entry.get();  // stays put while users > 0
+  ++step->users;
+  struct Release {
+    const ParticleSet* set;
+    SetStep* step;
+    ~Release() {  // the GIL is held again here
+      if (--step->users == 0) set_steps().erase(set);
+    }
+  } release_entry{&set, step};
+  auto held = step->lock.hold();
   ParticleSet work = set;
   auto result = [&] {
     py::gil_scoped_release release;
     return f(work);
   }();
   set.assign_in_place(work);
+  held.unlock();
   return result;
 }
 
@@ -179,7 +332,9 @@ void bind_enum(py::module_& m, const char* name, std::initializer_list<std::pair
   py::enum_<E> e(m, name);
   for (const auto& [n, v] : values) e.value(n, v);
   e.def(py::init([from_string](const std::string& s) { return from_string(s); }));
-  e.def("__str__", [](E v) { return to_string(v); });
+  // Replaces enum_'s __str__ ("PatchKind.Dirichlet"): def() would add an
+  // overload behind it that is never reached.
+  e.attr("__str__") = py::cpp_function([](E v) { return to_string(v); }, py::name("__str__"), py::is_method(e));
   py::implicitly_convertible<py::str, E>();
 }
 
@@ -195,9 +350,9 @@ PyDomain mutable_domain(const DomainPtr& d) { return std::const_pointer_cast<Dom
 
 // A scalar for one point (1-D input), else an array over the points.
 template <class F>
-py::object per_point(const DoubleArray& a, F f) {
-  const std::vector<Vec3> x = points_from(a, "points");
-  if (a.ndim() == 1) return py::cast(f(x[0]));
+py::object per_point(const py::object& points, F f) {
+  const std::vector<Vec3> x = points_from(points, "points");
+  if (real_array(points, "points").ndim() == 1) return py::cast(f(x[0]));
   using R = decltype(f(x[0]));
   if constexpr (std::is_same_v<R, Vec3>) {
     std::vector<Vec3> out(x.size());
@@ -240,20 +395,22 @@ class PyFunctional {
   PyFunctional(int dim, const FunctionalOptions& options, const PyDomain& domain, double barrier_stiffness)
       : functional_(dim, options, make_barrier(domain, barrier_stiffness), periodicity_of(domain, dim)) {}
 
-  void set_reference(const DoubleArray& x, const DoubleArray& s, const DoubleArray& m) {
+  void set_reference(const py::object& x, const py::object& s, const py::object& m) {
+    auto held = lock_.hold();
     x_ref_ = points_from(x, "x_ref");
     const std::size_t n = x_ref_.size();
-    s_ref_ = values_from(s, n, "s_ref");
-    functional_.set_reference(x_ref_, s_ref_, values_from(m, n, "masses"));
+    s_ref_ = values_from(s, n, "s_ref", true);
+    functional_.set_reference(x_ref_, s_ref_, values_from(m, n, "masses", true));
     has_reference_ = true;
   }
 
-  py::dict evaluate(const DoubleArray& x, const DoubleArray& s, bool all_pairs) {
+  py::dict evaluate(const py::object& x, const py::object& s, bool all_pairs) {
+    auto held = lock_.hold();
     if (!has_reference_) throw InvalidArgument("Functional.evaluate: call set_reference() first");
     const std::vector<Vec3> xv = points_from(x, "x");
     if (xv.size() != x_ref_.size())
       throw InvalidArgument("x: must have the reference's " + std::to_string(x_ref_.size()) + " rows");
-    const std::vector<double> sv = values_from(s, xv.size(), "s");
+    const std::vector<double> sv = values_from(s, xv.size(), "s", true);
     Gradient g;
     g.resize(xv.size(), functional_.options().optimise_widths);
     FunctionalParts parts;
@@ -272,9 +429,8 @@ class PyFunctional {
     return out;
   }
 
-  Functional& functional() { return functional_; }
-
  private:
+  ObjectLock lock_;
   Functional functional_;
   std::vector<Vec3> x_ref_;
   std::vector<double> s_ref_;
@@ -285,6 +441,30 @@ class PyFunctional {
 
 // Thrown by the observer wrapper when the Python observer returns False.
 struct StopRequested {};
+
+// ConfiguredRun.run's out_dir refused (an earlier run there, a held lock, not
+// a directory): the command-line tool's rules, raised as a ValueError.
+class OutputDirError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// Control characters as escapes: a path with a newline stays a one-line message.
+std::string escaped(const std::string& s) {
+  std::string out;
+  for (const char ch : s) {
+    const auto u = static_cast<unsigned char>(ch);
+    if (u < 0x20 || u == 0x7f) {
+      static const char hex[] = "0123456789abcdef";
+      out += "\\x";
+      out += hex[u >> 4];
+      out += hex[u & 15];
+    } else {
+      out += ch;
+    }
+  }
+  return out;
+}
 
 py::dict json_to_dict(const nlohmann::json& j) {
   py::module_ json = py::module_::import("json");
@@ -300,6 +480,7 @@ PYBIND11_MODULE(_otfp, m) {
   py::register_exception<InvalidArgument>(m, "InvalidArgument", PyExc_ValueError);
   py::register_exception<app::ConfigError>(m, "ConfigError", PyExc_ValueError);
   py::register_exception<StepFailure>(m, "StepFailure", PyExc_RuntimeError);
+  py::register_exception<OutputDirError>(m, "OutputDirError", PyExc_ValueError);
   m.attr("__version__") = app::version();
 
   // ---- enums
@@ -355,7 +536,7 @@ PYBIND11_MODULE(_otfp, m) {
 
   // ---- random numbers
   py::class_<Rng>(m, "Rng", "xoshiro256** seeded by SplitMix64: the same seed gives the same stream everywhere.")
-      .def(py::init<std::uint64_t>(), py::arg("seed") = 0x5eed)
+      .def(py::init([](const py::int_& seed) { return Rng(seed_from(seed)); }), py::arg("seed") = 0x5eed)
       .def("uniform", py::overload_cast<>(&Rng::uniform))
       .def("normal", &Rng::normal);
 
@@ -364,10 +545,11 @@ PYBIND11_MODULE(_otfp, m) {
                           "Gaussian blobs in d = 1, 2, 3. positions (n, 3), widths s = beta^-1/2, masses, "
                           "birth_times and ids are numpy views of the set's storage.")
       .def(py::init<int>(), py::arg("dim") = 3)
-      .def(py::init([](int dim, const DoubleArray& x, const DoubleArray& s, const DoubleArray& mass) {
-             const std::vector<Vec3> xv = points_from(x, "positions");
-             const std::vector<double> sv = values_from(s, xv.size(), "widths");
-             const std::vector<double> mv = values_from(mass, xv.size(), "masses");
+      .def(py::init([](int dim, const py::object& x, const py::object& s, const py::object& mass) {
+             require(dim >= 1 && dim <= 3, "dim", dim, "must be 1, 2 or 3");
+             const std::vector<Vec3> xv = points_from(x, "positions", dim);
+             const std::vector<double> sv = values_from(s, xv.size(), "widths", true);
+             const std::vector<double> mv = values_from(mass, xv.size(), "masses", true);
              ParticleSet ps(dim);
              ps.reserve(xv.size());
              for (std::size_t i = 0; i < xv.size(); ++i) ps.add(xv[i], sv[i], mv[i]);
@@ -418,13 +600,21 @@ PYBIND11_MODULE(_otfp, m) {
         return values_to(b);
       }, "beta = 1 / s^2 per particle (a new array)")
       .def("add",
-           [](ParticleSet& ps, const DoubleArray& x, double width_s, double mass, double birth_time) {
-             require_no_views(ps, "ParticleSet.add");
+           [](ParticleSet& ps, const py::object& x, double width_s, double mass, double birth_time) {
+             // One point: a 2-D array is refused rather than cut to its first row.
+             if (const DoubleArray a = real_array(x, "x"); a.ndim() != 1)
+               throw InvalidArgument("x: shape " + shape_of(a) +
+                                     ": add() takes one point (1 to 3 coordinates); for many particles build "
+                                     "ParticleSet(dim, positions, widths, masses)");
+             const Vec3 point = points_from(x, "x", ps.dim()).at(0);
              require(std::isfinite(width_s) && width_s > 0.0, "width_s", width_s, "must be finite and > 0");
              require(std::isfinite(mass) && mass > 0.0, "mass", mass, "must be finite and > 0");
-             return ps.add(points_from(x, "x").at(0), width_s, mass, birth_time);
+             if (!std::isfinite(birth_time)) throw InvalidArgument("birth_time = " + num(birth_time) + ": must be finite");
+             require_no_views(ps, "ParticleSet.add");
+             return ps.add(point, width_s, mass, birth_time);
            },
-           py::arg("x"), py::arg("width_s"), py::arg("mass"), py::arg("birth_time") = 0.0, "Appends one particle; returns its id.")
+           py::arg("x"), py::arg("width_s"), py::arg("mass"), py::arg("birth_time") = 0.0,
+           "Appends one particle (x: one point of 1 to 3 coordinates); returns its id.")
       .def("remove",
            [](ParticleSet& ps, std::size_t index) {
              require_no_views(ps, "ParticleSet.remove");
@@ -468,16 +658,16 @@ PYBIND11_MODULE(_otfp, m) {
         const Aabb b = d.bounding_box();
         return py::make_tuple(Vec3(b.lo), Vec3(b.hi));
       })
-      .def("signed_distance", [](const Domain& d, const DoubleArray& x) {
+      .def("signed_distance", [](const Domain& d, const py::object& x) {
         return per_point(x, [&](const Vec3& p) { return d.signed_distance(p); });
       }, py::arg("points"), "< 0 inside; a float for one point, else an array")
-      .def("closest_point", [](const Domain& d, const DoubleArray& x) {
+      .def("closest_point", [](const Domain& d, const py::object& x) {
         return per_point(x, [&](const Vec3& p) { return d.closest_point(p); });
       }, py::arg("points"))
-      .def("patch_id", [](const Domain& d, const DoubleArray& x) {
+      .def("patch_id", [](const Domain& d, const py::object& x) {
         return per_point(x, [&](const Vec3& p) { return d.patch_id(p); });
       }, py::arg("points"), "the patch of the closest boundary point")
-      .def("contains", [](const Domain& d, const DoubleArray& x) {
+      .def("contains", [](const Domain& d, const py::object& x) {
         return per_point(x, [&](const Vec3& p) { return d.contains(p); });
       }, py::arg("points"));
   m.def("make_ball", [](int dim, const Vec3& c, double r) { return mutable_domain(make_ball(dim, c, r)); },
@@ -622,8 +812,8 @@ PYBIND11_MODULE(_otfp, m) {
   m.def("default_max_particles", &default_max_particles,
         "Half the machine's memory over 2.5 KB per particle: what SimulationOptions.max_particles = 0 means.");
   m.def("fill_particles",
-        [](const PyDomain& domain, const FillOptions& o, std::uint64_t seed) {
-          Rng rng(seed);
+        [](const PyDomain& domain, const FillOptions& o, const py::int_& seed) {
+          Rng rng(seed_from(seed));
           return fill_particles(*domain, o, rng);
         },
         py::arg("domain"), py::arg("options"), py::arg("seed") = 1);
@@ -731,65 +921,115 @@ PYBIND11_MODULE(_otfp, m) {
       .def("evaluate", &PyFunctional::evaluate, py::arg("x"), py::arg("s"), py::arg("all_pairs") = false,
            "dict: value, transport, entropy, barrier, gradient_x (n, 3), gradient_s (n,) or None, density (n,)");
 
-  // ---- steppers
-  py::class_<ImplicitStepper>(m, "ImplicitStepper", "Minimises (28) each step (Ceres or NLopt).")
+  // ---- steppers (each with its lock: threads sharing one take turns)
+  using PyImplicitStepper = Locked<ImplicitStepper>;
+  using PyExplicitStepper = Locked<ExplicitStepper>;
+  py::class_<PyImplicitStepper>(m, "ImplicitStepper", "Minimises (28) each step (Ceres or NLopt).")
       .def(py::init([](const PyDomain& domain, const ImplicitOptions& options, double barrier_stiffness,
                        std::optional<int> dim) {
              options.validate();
-             return std::make_unique<ImplicitStepper>(dim_of(domain, dim), options, make_barrier(domain, barrier_stiffness),
-                                                      periodicity_of(domain, dim_of(domain, dim)));
+             return std::make_unique<PyImplicitStepper>(std::make_unique<ImplicitStepper>(
+                 dim_of(domain, dim), options, make_barrier(domain, barrier_stiffness),
+                 periodicity_of(domain, dim_of(domain, dim))));
            }),
            py::arg("domain") = PyDomain{}, py::arg("options") = ImplicitOptions{}, py::arg("barrier_stiffness") = 0.0,
            py::arg("dim") = py::none())
       .def("step",
-           [](ImplicitStepper& st, ParticleSet& ps, double dt, double max_error) {
-             return on_copy(ps, [&](ParticleSet& w) { return st.step(w, dt, max_error); });
+           [](PyImplicitStepper& st, ParticleSet& ps, double dt, double max_error) {
+             check_particles(ps, "particles");
+             auto held = st.lock.hold();
+             return on_copy(ps, [&](ParticleSet& w) { return st.object->step(w, dt, max_error); });
            },
            py::arg("particles"), py::arg("dt"), py::arg("max_error") = std::numeric_limits<double>::infinity(),
            "One step of length dt, in place (the GIL is released). A failed step leaves the particles as they were.")
-      .def("reset_history", &ImplicitStepper::reset_history)
-      .def_property_readonly("options", &ImplicitStepper::options);
-  py::class_<ExplicitStepper>(m, "ExplicitStepper", "Algorithm 1 line 4 (sign corrected), RK4, or Euler on dF/dx.")
+      .def("reset_history",
+           [](PyImplicitStepper& st) {
+             auto held = st.lock.hold();
+             st.object->reset_history();
+           })
+      .def_property_readonly("options", [](PyImplicitStepper& st) {
+        auto held = st.lock.hold();
+        return ImplicitOptions(st.object->options());
+      }, "A copy of the stepper's options.");
+  py::class_<PyExplicitStepper>(m, "ExplicitStepper", "Algorithm 1 line 4 (sign corrected), RK4, or Euler on dF/dx.")
       .def(py::init([](const PyDomain& domain, const ExplicitOptions& options, double barrier_stiffness,
                        std::optional<int> dim) {
              options.validate();
-             return std::make_unique<ExplicitStepper>(dim_of(domain, dim), options, make_barrier(domain, barrier_stiffness),
-                                                      periodicity_of(domain, dim_of(domain, dim)));
+             return std::make_unique<PyExplicitStepper>(std::make_unique<ExplicitStepper>(
+                 dim_of(domain, dim), options, make_barrier(domain, barrier_stiffness),
+                 periodicity_of(domain, dim_of(domain, dim))));
            }),
            py::arg("domain") = PyDomain{}, py::arg("options") = ExplicitOptions{}, py::arg("barrier_stiffness") = 0.0,
            py::arg("dim") = py::none())
       .def("step",
-           [](ExplicitStepper& st, ParticleSet& ps, double dt) {
-             return on_copy(ps, [&](ParticleSet& w) { return st.step(w, dt); });
+           [](PyExplicitStepper& st, ParticleSet& ps, double dt) {
+             check_particles(ps, "particles");
+             auto held = st.lock.hold();
+             return on_copy(ps, [&](ParticleSet& w) { return st.object->step(w, dt); });
            },
            py::arg("particles"), py::arg("dt"), "One explicit step, in place (the GIL is released).");
 
-  // ---- Simulation
-  py::class_<Simulation>(m, "Simulation", "Algorithm 1: advection, source, diffusion, projection, ledger.")
+  // ---- Simulation (with its lock: every method waits for a step running in
+  // another thread; the observer of run_until may use its own simulation)
+  using PySimulation = Locked<Simulation>;
+  py::class_<PySimulation>(m, "Simulation", "Algorithm 1: advection, source, diffusion, projection, ledger.")
       .def(py::init([](const PyDomain& domain, std::vector<ConstantBoundaryData> boundary,
                        const SimulationOptions& options) {
              if (!domain) throw InvalidArgument("domain: required");
-             return std::make_unique<Simulation>(domain, std::move(boundary), options);
+             return std::make_unique<PySimulation>(std::make_unique<Simulation>(domain, std::move(boundary), options));
            }),
            py::arg("domain"), py::arg("boundary"), py::arg("options"))
-      .def("start", [](Simulation& s, const ParticleSet& ps, double t0) { s.start(ps, t0); }, py::arg("particles"),
-           py::arg("t0") = 0.0, "The state at t0 (a copy of the particles); random numbers from options.seed.")
-      .def("advance", &Simulation::advance, py::arg("dt"), py::call_guard<py::gil_scoped_release>())
-      .def("advance_to", &Simulation::advance_to, py::arg("t_end"), py::call_guard<py::gil_scoped_release>())
-      .def("advance_adaptive", &Simulation::advance_adaptive, py::arg("t_limit"),
-           py::call_guard<py::gil_scoped_release>())
+      .def("start",
+           [](PySimulation& s, const ParticleSet& ps, double t0) {
+             check_particles(ps, "particles");
+             auto held = s.lock.hold();
+             s.object->start(ps, t0);
+           },
+           py::arg("particles"), py::arg("t0") = 0.0,
+           "The state at t0 (a copy of the particles); random numbers from options.seed.")
+      .def("advance",
+           [](PySimulation& s, double dt) {
+             auto held = s.lock.hold();
+             py::gil_scoped_release release;
+             return s.object->advance(dt);
+           },
+           py::arg("dt"))
+      .def("advance_to",
+           [](PySimulation& s, double t_end) {
+             auto held = s.lock.hold();
+             py::gil_scoped_release release;
+             return s.object->advance_to(t_end);
+           },
+           py::arg("t_end"))
+      .def("advance_adaptive",
+           [](PySimulation& s, double t_limit) {
+             auto held = s.lock.hold();
+             py::gil_scoped_release release;
+             return s.object->advance_adaptive(t_limit);
+           },
+           py::arg("t_limit"))
       .def("run_until",
-           [](Simulation& s, double t_end, double dt, py::object observer, bool adaptive) {
+           [](PySimulation& s, double t_end, double dt, py::object observer, bool adaptive) {
+             auto held = s.lock.hold();
              Simulation::Observer obs;
              if (!observer.is_none())
-               obs = [&observer](const Simulation& sim, const SimulationStep& step) {
+               obs = [&observer, &s](const Simulation&, const SimulationStep& step) {
                  py::gil_scoped_acquire acquire;
-                 py::object r = observer(py::cast(sim, py::return_value_policy::reference), py::cast(step));
-                 if (!r.is_none() && !r.cast<bool>()) throw StopRequested{};
+                 py::object r = observer(py::cast(s, py::return_value_policy::reference), py::cast(step));
+                 if (r.is_none()) return;
+                 // True/False (numpy's bool too); anything else is a mistake, not a truth value.
+                 const bool is_bool = py::isinstance<py::bool_>(r) ||
+                                      py::isinstance(r, py::module_::import("numpy").attr("bool_"));
+                 if (!is_bool)
+                   throw py::type_error("observer returned " +
+                                        py::str(py::type::of(r).attr("__name__")).cast<std::string>() +
+                                        ": an observer must return None or True (go on) or False (stop after this "
+                                        "step)");
+                 if (!r.cast<bool>()) throw StopRequested{};
                };
              try {
                py::gil_scoped_release release;
-               s.run_until(t_end, dt, obs, adaptive);
+               s.object->run_until(t_end, dt, obs, adaptive);
              } catch (const StopRequested&) {
                return false;
              }
@@ -798,31 +1038,88 @@ PYBIND11_MODULE(_otfp, m) {
            py::arg("t_end"), py::arg("dt"), py::arg("observer") = py::none(), py::arg("adaptive") = false,
            "Steps to t_end (equal steps of at most dt, or adaptive). observer(sim, step) sees every step; "
            "returning False stops after that step. Returns True when t_end was reached.")
-      .def_property_readonly("time", &Simulation::time)
-      .def_property_readonly("step_count", &Simulation::step_count)
-      .def_property_readonly("started", &Simulation::started)
-      .def_property_readonly("next_dt", &Simulation::next_dt)
-      .def("set_next_dt", &Simulation::set_next_dt, py::arg("dt"))
-      .def_property_readonly("particles", [](const Simulation& s) { return ParticleSet(s.particles()); },
+      .def_property_readonly("time",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return s.object->time();
+                             })
+      .def_property_readonly("step_count",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return s.object->step_count();
+                             })
+      .def_property_readonly("started",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return s.object->started();
+                             })
+      .def_property_readonly("next_dt",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return s.object->next_dt();
+                             })
+      .def("set_next_dt",
+           [](PySimulation& s, double dt) {
+             auto held = s.lock.hold();
+             s.object->set_next_dt(dt);
+           },
+           py::arg("dt"))
+      .def_property_readonly("particles",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return ParticleSet(s.object->particles());
+                             },
                              "A copy of the particles (the simulation's own change size every step).")
-      .def_property_readonly("domain", [](const Simulation& s) { return mutable_domain(s.domain_ptr()); })
-      .def_property_readonly("options", &Simulation::options)
-      .def_property_readonly("ledger", &Simulation::ledger)
-      .def_property_readonly("totals", &Simulation::totals)
-      .def_property_readonly("initial_step", &Simulation::initial_step)
-      .def("full_report", &Simulation::full_report)
+      .def_property_readonly("domain", [](PySimulation& s) { return mutable_domain(s.object->domain_ptr()); })
+      .def_property_readonly("options",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return SimulationOptions(s.object->options());
+                             },
+                             "A copy of the options.")
+      .def_property_readonly("ledger",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return SimulationLedger(s.object->ledger());
+                             })
+      .def_property_readonly("totals",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return SimulationTotals(s.object->totals());
+                             })
+      .def_property_readonly("initial_step",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return SimulationStep(s.object->initial_step());
+                             })
+      .def("full_report",
+           [](PySimulation& s) {
+             auto held = s.lock.hold();
+             return s.object->full_report();
+           })
       .def("measure",
-           [](const Simulation& s, const Vec3& center) {
+           [](PySimulation& s, const Vec3& center) {
+             auto held = s.lock.hold();
              std::vector<std::int32_t> region;
-             const StateMeasures ms = s.measure(center, &region);
+             const StateMeasures ms = s.object->measure(center, &region);
              return py::make_tuple(ms, py::array_t<std::int32_t>(static_cast<py::ssize_t>(region.size()), region.data()));
            },
            py::arg("center"), "(StateMeasures, region per particle: 0 inside, 1 buffer, 2 elsewhere)")
-      .def("save_checkpoint", &Simulation::save_checkpoint, py::arg("path"), py::arg("extra") = std::string())
+      .def("save_checkpoint",
+           [](PySimulation& s, const std::filesystem::path& path, const std::string& extra) {
+             auto held = s.lock.hold();
+             py::gil_scoped_release release;
+             s.object->save_checkpoint(path, extra);
+           },
+           py::arg("path"), py::arg("extra") = std::string())
       .def("load_checkpoint",
-           [](Simulation& s, const std::filesystem::path& path) {
+           [](PySimulation& s, const std::filesystem::path& path) {
+             auto held = s.lock.hold();
              std::string extra;
-             s.load_checkpoint(path, &extra);
+             {
+               py::gil_scoped_release release;
+               s.object->load_checkpoint(path, &extra);
+             }
              return extra;
            },
            py::arg("path"), "Restores the state (bit for bit); returns the caller's extra string.");
@@ -888,20 +1185,25 @@ PYBIND11_MODULE(_otfp, m) {
          "Decay rate of exp(-lam t) under the time scheme alone (TimeScheme or ExplicitScheme, or its name).");
 
   // ---- the command-line tool's configurations
-  py::class_<app::ConfiguredRun>(m, "ConfiguredRun", "A TOML configuration of `otfp run`, with its derived numbers.")
+  // run() steps the configuration's own Simulation: runs from several
+  // threads take turns (the rest reads what the constructor fixed).
+  using PyConfiguredRun = Locked<app::ConfiguredRun>;
+  py::class_<PyConfiguredRun>(m, "ConfiguredRun", "A TOML configuration of `otfp run`, with its derived numbers.")
       .def_property_readonly("description",
-                             [](const app::ConfiguredRun& r) { return json_to_dict(r.describe()); },
+                             [](const PyConfiguredRun& r) { return json_to_dict(r.object->describe()); },
                              "{'config': the resolved keys, 'derived': dt, n_steps, M_inf, ...}")
-      .def_property_readonly("dt", [](const app::ConfiguredRun& r) { return r.derived().dt; })
-      .def_property_readonly("n_steps", [](const app::ConfiguredRun& r) { return r.derived().n_steps; })
-      .def_property_readonly("t_end", [](const app::ConfiguredRun& r) { return r.config().run.t_end; })
-      .def_property_readonly("M_inf", [](const app::ConfiguredRun& r) { return r.derived().M_inf; })
-      .def_property_readonly("center", [](const app::ConfiguredRun& r) { return r.derived().center; })
-      .def_property_readonly("domain", [](const app::ConfiguredRun& r) { return mutable_domain(r.domain_ptr()); })
-      .def("make_simulation", [](const app::ConfiguredRun& r) { return r.make_simulation(); },
+      .def_property_readonly("dt", [](const PyConfiguredRun& r) { return r.object->derived().dt; })
+      .def_property_readonly("n_steps", [](const PyConfiguredRun& r) { return r.object->derived().n_steps; })
+      .def_property_readonly("t_end", [](const PyConfiguredRun& r) { return r.object->config().run.t_end; })
+      .def_property_readonly("M_inf", [](const PyConfiguredRun& r) { return r.object->derived().M_inf; })
+      .def_property_readonly("center", [](const PyConfiguredRun& r) { return r.object->derived().center; })
+      .def_property_readonly("domain", [](const PyConfiguredRun& r) { return mutable_domain(r.object->domain_ptr()); })
+      .def("make_simulation",
+           [](const PyConfiguredRun& r) { return std::make_unique<PySimulation>(r.object->make_simulation()); },
            "A started Simulation as `otfp run` builds it: advance_to(k * dt) reproduces the CLI's steps bit for bit.")
       .def("run",
-           [](app::ConfiguredRun& r, const std::filesystem::path& out_dir, bool progress) {
+           [](PyConfiguredRun& r, const std::filesystem::path& out_dir, bool progress, bool overwrite) {
+             auto held = r.lock.hold();
              app::RunOptions o;
              o.out_dir = out_dir;
              o.progress = progress;
@@ -909,7 +1211,15 @@ PYBIND11_MODULE(_otfp, m) {
              app::RunResult res;
              {
                py::gil_scoped_release release;
-               res = r.run(o);
+               // The command-line tool's rules: the directory locked for the
+               // whole run, an earlier run's refused unless overwrite=True.
+               app::OutputLock lock;
+               if (!out_dir.empty())
+                 if (const std::string why =
+                         app::prepare_out_dir(out_dir, /*resume=*/false, overwrite, lock, "overwrite=True");
+                     !why.empty())
+                   throw OutputDirError("out_dir = \"" + escaped(out_dir.string()) + "\": " + escaped(why));
+               res = r.object->run(o);
              }
              py::dict d;
              d["status"] = res.status;
@@ -918,11 +1228,15 @@ PYBIND11_MODULE(_otfp, m) {
              d["summary"] = json_to_dict(res.summary);
              return d;
            },
-           py::arg("out_dir") = std::filesystem::path(), py::arg("progress") = false,
-           "The whole run as `otfp run CONFIG --out out_dir` (nothing written when out_dir is empty).");
+           py::arg("out_dir") = std::filesystem::path(), py::arg("progress") = false, py::kw_only(),
+           py::arg("overwrite") = false,
+           "The whole run as `otfp run CONFIG --out out_dir [--overwrite]` (nothing written when out_dir is empty). "
+           "OutputDirError (a ValueError) when out_dir holds an earlier run (unless overwrite=True) or another "
+           "run holds its lock.");
   m.def("load_config",
         [](const std::filesystem::path& path, const std::vector<std::string>& overrides) {
-          return std::make_unique<app::ConfiguredRun>(app::parse_config_file(path, overrides));
+          return std::make_unique<PyConfiguredRun>(
+              std::make_unique<app::ConfiguredRun>(app::parse_config_file(path, overrides)));
         },
         py::arg("path"), py::arg("overrides") = std::vector<std::string>{},
         "Reads a TOML configuration (overrides: 'key=value' as --set) and derives (36)-(40); ConfigError names the key.");

@@ -139,3 +139,15 @@ def test_measure_and_references():
     # Crank's uptake, vectorised, equals the scalar calls.
     tau = np.array([0.01, 0.1, 1.0])
     assert list(otfp.analytic.crank_sphere_uptake(tau)) == [otfp.analytic.crank_sphere_uptake(t) for t in tau]
+
+
+def test_brief_report_prints_six_significant_digits():
+    sim = small_simulation()
+    sim.advance(0.1)
+    step = sim.advance(0.2)
+    assert step.t_end == 0.1 + 0.2 != 0.3  # 0.30000000000000004
+    report = step.brief_report()
+    assert report.startswith("step 2: t = 0.3 (dt = 0.2), F = "), report
+    f_text = report.split("F = ")[1].split(",")[0]
+    assert float(f_text) == pytest.approx(step.diffusion.f_after, rel=1e-5)
+    assert len(f_text.lstrip("-").replace(".", "").split("e")[0].lstrip("0")) <= 6

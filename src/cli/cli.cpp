@@ -1,12 +1,8 @@
 #include "otfp_app/cli.hpp"
 
-#include <fcntl.h>
 #include <sys/prctl.h>
-#include <sys/file.h>
-#include <sys/stat.h>
 #include <unistd.h>
 
-#include <cerrno>
 #include <csignal>
 #include <cstdlib>
 #include <cstring>
@@ -14,7 +10,6 @@
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
-#include <algorithm>
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -22,6 +17,7 @@
 #include <vector>
 
 #include "otfp_app/config.hpp"
+#include "otfp_app/out_dir.hpp"
 #include "otfp_app/simulation.hpp"
 #include "otfp_app/sweep.hpp"
 #include "otfp_app/writers.hpp"
@@ -158,116 +154,6 @@ std::unique_ptr<ConfiguredRun> load(const std::string& config, const std::vector
     code = error(err, e.what(), kUsage);
   }
   return nullptr;
-}
-
-namespace fs = std::filesystem;
-
-// The lock of an output directory: DIR/.otfp.lock, flock(2)ed for the whole
-// run, removed at the end. A run killed outright leaves the file but not the
-// lock (the kernel drops it with the process), so a stale file stops nobody.
-class OutputLock {
- public:
-  OutputLock() = default;
-  OutputLock(const OutputLock&) = delete;
-  OutputLock& operator=(const OutputLock&) = delete;
-  ~OutputLock() {
-    if (fd_ < 0) return;
-    ::unlink(path_.c_str());
-    ::close(fd_);
-  }
-  // "" when taken, else why not.
-  std::string acquire(const fs::path& dir) {
-    path_ = dir / ".otfp.lock";
-    for (int attempt = 0; attempt < 5; ++attempt) {
-      const int fd = ::open(path_.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
-      if (fd < 0) return std::string("cannot write there: ") + std::strerror(errno);
-      if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
-        const int e = errno;
-        ::close(fd);
-        if (e == EWOULDBLOCK) return "in use by another otfp run (" + path_.string() + " is locked)";
-        return std::string("cannot lock ") + path_.string() + ": " + std::strerror(e);
-      }
-      // The holder before us may have removed the file between our open and
-      // our flock: then the lock is on a file nobody else sees; take it again.
-      struct stat held {}, named {};
-      if (::fstat(fd, &held) == 0 && ::stat(path_.c_str(), &named) == 0 && held.st_ino == named.st_ino &&
-          held.st_dev == named.st_dev) {
-        fd_ = fd;
-        const std::string pid = std::to_string(::getpid()) + "\n";
-        if (::ftruncate(fd_, 0) == 0 && ::write(fd_, pid.data(), pid.size()) < 0) {
-          // The pid is only informative.
-        }
-        return "";
-      }
-      ::close(fd);
-    }
-    return "cannot lock " + path_.string() + ": it keeps being replaced";
-  }
-
- private:
-  int fd_ = -1;
-  fs::path path_;
-};
-
-// The files an otfp run writes into its directory (simulation.cpp,
-// writers.cpp), and the temporary files ("<name>.tmp<pid>") of one killed
-// while writing them.
-bool is_run_output(const std::string& name) {
-  static const char* const fixed[] = {"series.csv",      "timing.csv",          "summary.json",
-                                      "config.toml",     "checkpoint.bin",      "particles_final.csv",
-                                      "domain.vtp",      "particles.pvd",       "particles_failed.vtp"};
-  const auto digits = [](const std::string& t, std::size_t min) {
-    return t.size() >= min && std::all_of(t.begin(), t.end(), [](char c) { return c >= '0' && c <= '9'; });
-  };
-  const auto known = [&](const std::string& n) {
-    for (const char* f : fixed)
-      if (n == f) return true;
-    // particles_NNNNN.vtp: a snapshot (five digits or more).
-    const std::string pre = "particles_", post = ".vtp";
-    return n.size() > pre.size() + post.size() && n.compare(0, pre.size(), pre) == 0 &&
-           n.compare(n.size() - post.size(), post.size(), post) == 0 &&
-           digits(n.substr(pre.size(), n.size() - pre.size() - post.size()), 5);
-  };
-  if (known(name)) return true;
-  const std::size_t tmp = name.rfind(".tmp");
-  return tmp != std::string::npos && tmp > 0 && digits(name.substr(tmp + 4), 1) && known(name.substr(0, tmp));
-}
-
-// The run's output directory, made ready before any work: created (the
-// configuration has been accepted) and locked, which also shows that it can
-// be written, so that an unusable --out is bad input (exit 2), not a run that
-// fails after its initial fill. Then an earlier run there (summary.json,
-// series.csv or checkpoint.bin) is refused unless the run resumes it or
-// --overwrite clears its files first. Returns why the directory cannot be
-// used, or "".
-std::string prepare_out_dir(const fs::path& dir, bool resume, bool overwrite, OutputLock& lock) {
-  std::error_code ec;
-  const bool existed = fs::exists(dir, ec);
-  if (ec && ec != std::errc::no_such_file_or_directory) return "cannot use it: " + ec.message();
-  if (existed && !fs::is_directory(dir, ec)) return "exists and is not a directory";
-  if (!existed) {
-    fs::create_directories(dir, ec);
-    if (ec) return "cannot create the directory: " + ec.message();
-  }
-  if (std::string why = lock.acquire(dir); !why.empty()) {
-    if (!existed) fs::remove(dir, ec);  // the directory just made, still empty
-    return why;
-  }
-  if (resume) return "";
-  std::string earlier;
-  for (const char* f : {"summary.json", "series.csv", "checkpoint.bin"})
-    if (earlier.empty() && fs::exists(dir / f, ec)) earlier = f;
-  if (earlier.empty()) return "";
-  if (!overwrite)
-    return "holds an earlier otfp run (" + earlier +
-           "); pass --overwrite to replace its files, or continue it with otfp run --resume " + dir.string();
-  std::vector<fs::path> old_files;
-  for (const fs::directory_entry& e : fs::directory_iterator(dir, ec))
-    if (is_run_output(e.path().filename().string()) && !e.is_directory()) old_files.push_back(e.path());
-  if (ec) return "--overwrite cannot list the directory: " + ec.message();
-  for (const fs::path& f : old_files)
-    if (!fs::remove(f, ec) && ec) return "--overwrite cannot remove " + f.string() + ": " + ec.message();
-  return "";
 }
 
 }  // namespace
