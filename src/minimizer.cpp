@@ -62,6 +62,8 @@ void MinimizerOptions::validate() const {
           gradient_tolerance, "must be finite and > 0");
   require(relative_gradient_tolerance >= 0.0 && relative_gradient_tolerance <= 1.0,
           "solver.relative_gradient_tolerance", relative_gradient_tolerance, "must be in [0, 1] (0 disables it)");
+  require(std::isfinite(start_tolerance) && start_tolerance >= 0.0, "solver.start_tolerance", start_tolerance,
+          "must be finite and >= 0");
   require(std::isfinite(gradient_tolerance_floor) && gradient_tolerance_floor >= 0.0, "solver.gradient_tolerance_floor",
           gradient_tolerance_floor, "must be finite and >= 0");
   require(std::isfinite(function_tolerance) && function_tolerance >= 0.0, "solver.function_tolerance",
@@ -185,7 +187,7 @@ MinimizerSummary minimize(Objective& objective, std::vector<double>& z, const Mi
                  options.gradient_tolerance_floor);
   summary.gradient_tolerance = options.gradient_tolerance;
 
-  if (start.measure <= options.gradient_tolerance || n == 0) {
+  if (start.measure <= std::max(options.gradient_tolerance, options.start_tolerance) || n == 0) {
     summary.reason = TerminationReason::Converged;
     summary.final_value = start.value;
     summary.final_stopping_measure = start.measure;

@@ -14,6 +14,7 @@
 
 #include "boundary_internal.hpp"
 #include "cell_grid.hpp"
+#include "placement_density.hpp"
 #include "otfp/images.hpp"
 #include "otfp/neighbor_list.hpp"
 #include "otfp/boundary.hpp"
@@ -25,6 +26,7 @@ using detail::draw_without_replacement;
 using detail::kCountTolerance;
 using detail::kReservoirSeed;
 using detail::mean_of;
+using detail::PlacementDensity;
 using detail::uniform_in;
 
 namespace {
@@ -41,78 +43,6 @@ constexpr double kVolumeAgreementSigmas = 4.0;
 constexpr double kBackTolerance = 0.05;
 // Quiet control: at least this many candidate points per sublayer.
 constexpr std::size_t kMinCandidates = 64;
-// Kernel tolerance of the placement density (a ranking, not the functional).
-constexpr double kPlacementKernelTolerance = 1e-8;
-
-// The blob density of the particles at arbitrary points, with first-order
-// images across the given walls (the density the functional sees, up to
-// images of images): the quiet reservoir puts particles where it is lowest
-// and takes them where it is highest. Widths are the particles' own.
-class PlacementDensity {
- public:
-  // The blobs are the particles and their images across `walls`, chosen as
-  // the functional chooses them (WallImages, up to images of images at edges
-  // and corners), so that a settled state of the functional reads as one here.
-  PlacementDensity(const ParticleSet& particles, const std::vector<MirrorWallPtr>& walls) {
-    const int dim = particles.dim();
-    double s_max = 0.0;
-    for (double s : particles.widths()) s_max = std::max(s_max, s);
-    radius_ = cutoff_radius(s_max > 0.0 ? s_max : 1.0, kPlacementKernelTolerance);
-    if (particles.empty()) return;
-    std::vector<Vec3> blobs = particles.positions();
-    std::vector<double> width = particles.widths(), mass = particles.masses();
-    if (!walls.empty()) {
-      WallImages images(walls);
-      images.select(particles.positions(), std::vector<double>(particles.size(), radius_));
-      std::vector<Vec3> y;
-      images.positions(particles.positions(), y);
-      for (std::size_t i = 0; i < y.size(); ++i) {
-        const std::uint32_t q = images.sources()[i];
-        blobs.push_back(y[i]);
-        width.push_back(particles.widths()[q]);
-        mass.push_back(particles.masses()[q]);
-      }
-    }
-    grid_.build(blobs, radius_, Periodicity::none(dim), 1);
-    // Each blob's factors in the grid's cell order, next to its sorted coordinates.
-    const auto& items = grid_.items();
-    beta_.resize(items.size());
-    pre_.resize(items.size());
-    for (std::size_t k = 0; k < items.size(); ++k) {
-      const double sq = width[items[k]];
-      beta_[k] = 1.0 / (sq * sq);
-      pre_[k] = mass[items[k]] * std::pow(beta_[k] / std::numbers::pi, 0.5 * dim);
-    }
-  }
-  double radius() const { return radius_; }
-  // The blob density (29) at y, images included.
-  double at(const Vec3& y) const {
-    if (pre_.empty()) return 0.0;
-    double rho = 0.0;
-    const double r2 = radius_ * radius_;
-    const double* sx = grid_.sorted_x().data();
-    const double* sy = grid_.sorted_y().data();
-    const double* sz = grid_.sorted_z().data();
-    grid_.for_each_cell(y, [&](std::uint32_t b, std::uint32_t e, const Vec3&) {
-      for (std::uint32_t k = b; k < e; ++k) {
-        const double dx = y[0] - sx[k], dy = y[1] - sy[k], dz = y[2] - sz[k];
-        const double d2 = dx * dx + dy * dy + dz * dz;
-        if (d2 < r2) rho += pre_[k] * std::exp(-beta_[k] * d2);
-      }
-    });
-    return rho;
-  }
-  // m (beta/pi)^(d/2) exp(-beta r^2), beta = 1/s^2 (29).
-  static double kernel(const Vec3& y, const Vec3& x, double s, double m, int dim) {
-    const double beta = 1.0 / (s * s);
-    return m * std::pow(beta / std::numbers::pi, 0.5 * dim) * std::exp(-beta * (y - x).squaredNorm());
-  }
-
- private:
-  double radius_ = 0.0;
-  CellGrid grid_;
-  std::vector<double> beta_, pre_;  // per blob, in grid_ order
-};
 
 }  // namespace
 

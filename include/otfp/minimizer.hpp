@@ -29,6 +29,7 @@ struct MinimizerOptions {
   double gradient_tolerance = 1e-6;                // stop when Objective::stopping_measure <= this
   double relative_gradient_tolerance = 0.0;        // ... or <= this x its value at the start, if smaller (0: off)
   double gradient_tolerance_floor = 0.0;           // the relative rule never asks for less than this
+  double start_tolerance = 0.0;                    // a start whose measure is <= this is returned converged (0: off)
   double function_tolerance = 0.0;                 // relative change of f to stop at (0: off)
   int max_iterations = 1000;                       // iteration cap (Ceres' default of 50 is too low)
   int max_evaluations = 5000;                      // cap on value+gradient evaluations
