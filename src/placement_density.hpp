@@ -28,8 +28,14 @@ class PlacementDensity {
   const std::vector<Vec3>& blobs() const { return blobs_; }
   const std::vector<double>& widths() const { return width_; }
   const std::vector<double>& masses() const { return mass_; }
-  // m (beta/pi)^(d/2) exp(-beta |y - x|^2), beta = 1/s^2 (29), uncut.
-  static double kernel(const Vec3& y, const Vec3& x, double s, double m, int dim);
+  // The kernel of a blob of width s and mass m, w(y) = m (beta/pi)^(d/2)
+  // exp(-beta |y - x|^2) with beta = 1/s^2 (29), uncut: its two factors once,
+  // then its value at a distance.
+  struct Kernel {
+    double beta = 0.0, factor = 0.0;
+    Kernel(double s, double m, int dim);
+    double operator()(const Vec3& y, const Vec3& x) const;
+  };
 
  private:
   double radius_ = 0.0;

@@ -41,6 +41,10 @@ constexpr double kVolumeAgreementSigmas = 4.0;
 // Quiet control: the sublayer next to the band's back wall is corrected only
 // when its deficit exceeds this fraction of its target (see project_reservoir_quiet).
 constexpr double kBackTolerance = 0.05;
+// Quiet control: a sublayer's deficit is measured on 1 / (this x
+// reservoir_candidates) of its candidates, one per two particles of its
+// largest target.
+constexpr std::size_t kProbeFraction = 2;
 // Quiet control: at least this many candidate points per sublayer.
 constexpr std::size_t kMinCandidates = 64;
 
@@ -444,8 +448,12 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
   long total_insert = 0;
   for (std::size_t j = 0; j < held; ++j) {
     const std::vector<Vec3>& cand = r.candidates[j];
+    // One probe per two particles of the largest target (4 per particle and
+    // 2 per particle changed the errors by less than run-to-run noise at a
+    // fourth of the cost; docs/boundaries.md), at least kMinCandidates.
     const std::size_t probes = std::max<std::size_t>(
-        std::min(cand.size(), kMinCandidates), cand.size() / static_cast<std::size_t>(options_.reservoir_candidates));
+        std::min(cand.size(), kMinCandidates),
+        cand.size() / (kProbeFraction * static_cast<std::size_t>(options_.reservoir_candidates)));
     double sum_t = 0.0, sum_d = 0.0;
     for (std::size_t k = 0; k < probes; ++k) {
       const double t = target(cand[k]);
@@ -476,11 +484,12 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
       const auto k = static_cast<std::size_t>(std::max_element(excess.begin(), excess.end()) - excess.begin());
       const std::size_t p = in_j[k];
       const Vec3 xp = particles.positions()[p];
-      const double sp = particles.widths()[p], mp = particles.masses()[p];
+      const double mp = particles.masses()[p];
+      const PlacementDensity::Kernel w(particles.widths()[p], mp, dim);
       excess[k] = -std::numeric_limits<double>::infinity();
       for (std::size_t l = 0; l < in_j.size(); ++l)
         if (std::isfinite(excess[l]) && (particles.positions()[in_j[l]] - xp).squaredNorm() < r2)
-          excess[l] -= PlacementDensity::kernel(particles.positions()[in_j[l]], xp, sp, mp, dim);
+          excess[l] -= w(particles.positions()[in_j[l]], xp);
       to_remove.push_back(p);
       ++led.removed;
       ++call.removed;
@@ -514,6 +523,7 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
   std::vector<char> used(cand.size(), 0);
   particles.reserve(particles.size() + static_cast<std::size_t>(total_insert));
   const double mp = particle_mass_;
+  const PlacementDensity::Kernel w(width_s_, mp, dim);
   for (std::size_t j = 0; j < held; ++j) {
     for (long n = 0; n < change[j]; ++n) {
       std::size_t k = cand.size();
@@ -538,7 +548,7 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
       particles.add(y, width_s_, mp, t_new);
       grid.for_each_candidate(y, [&](std::uint32_t l) {
         if (!used[l] && (cand[l] - y).squaredNorm() < r2)
-          deficit[l] -= PlacementDensity::kernel(cand[l], y, width_s_, mp, dim);
+          deficit[l] -= w(cand[l], y);
       });
       ++led.inserted;
       ++call.inserted;
