@@ -79,15 +79,45 @@ def read_vtp(path):
     return arrays
 
 
+def is_particle_snapshot(path):
+    """A .vtp of particles (point data "age"), not the domain surface or another file."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(65536)
+    except OSError:
+        return False
+    head = head.split(b"<AppendedData", 1)[0]
+    return b"<PointData" in head and b'Name="age"' in head
+
+
 def last_snapshot(run_dir):
+    """The particle snapshot with the largest time: from particles.pvd (any
+    order of entries; files that are not particle snapshots, such as a domain
+    surface, are skipped), else the particles_NNNNN.vtp with the largest step."""
     pvd = os.path.join(run_dir, "particles.pvd")
     if os.path.exists(pvd):
         with open(pvd) as f:
-            files = re.findall(r'file="([^"]+)"', f.read())
-        if files:
-            return os.path.join(run_dir, files[-1])
-    files = sorted(f for f in os.listdir(run_dir) if re.fullmatch(r"particles_\d+\.vtp", f))
-    return os.path.join(run_dir, files[-1]) if files else None
+            entries = []
+            for i, tag in enumerate(re.findall(r"<DataSet\b[^>]*>", f.read())):
+                attrs = dict(re.findall(r'(\w+)="([^"]*)"', tag))
+                try:
+                    t = float(attrs.get("timestep", "nan"))
+                except ValueError:
+                    t = float("nan")
+                if "file" in attrs:
+                    entries.append((-math.inf if math.isnan(t) else t, i, attrs["file"]))
+        # Latest time first; among equal times the entry listed last.
+        for _, _, name in sorted(entries, reverse=True):
+            path = os.path.join(run_dir, name)
+            if is_particle_snapshot(path):
+                return path
+    steps = sorted((int(m.group(1)), f) for f in os.listdir(run_dir)
+                   for m in [re.fullmatch(r"particles_(\d+)\.vtp", f)] if m)
+    for _, name in reversed(steps):
+        path = os.path.join(run_dir, name)
+        if is_particle_snapshot(path):
+            return path
+    return None
 
 
 # ----------------------------------------------------------------- references
