@@ -78,6 +78,25 @@ def check_run(otfp, work):
         with open(path, "rb") as f:
             if f.read(8) != PNG_MAGIC:
                 fail(f"{name} is not a PNG")
+    # mass.png: two panels, no right-hand axis (the layer curve used to sit on
+    # one and dominate the comparison), M_rho drawn, the legend outside the data.
+    series, summary = plot.read_series(out), plot.read_summary(out)
+    fig = plot.mass_figure(series, summary, "sphere")
+    axes = fig.get_axes()
+    if len(axes) != 2:
+        fail(f"mass figure has {len(axes)} axes, expected 2 (values, errors)")
+    labels = [line.get_label() for line in axes[0].get_lines()]
+    for want in ("M / M_inf", "M_rho / M_inf"):
+        if not any(label.startswith(want) for label in labels):
+            fail(f"mass figure's upper panel has no line labelled {want!r}: {labels}")
+    if not any("Crank" in label for label in labels):
+        fail(f"mass figure's upper panel has no reference line: {labels}")
+    err_labels = [line.get_label() for line in axes[1].get_lines()]
+    if len([lab for lab in err_labels if not lab.startswith("_")]) < 2:
+        fail(f"mass figure's error panel has fewer than two curves: {err_labels}")
+    for ax in axes:
+        if ax.get_legend() is not None:
+            fail("a legend inside an axes (it covers the curves): expected one figure legend outside")
     print("plot.py on a sphere run: ok")
 
 
