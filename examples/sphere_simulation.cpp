@@ -1,6 +1,7 @@
 // The sphere of [2025] Sec. 5.1 from C++ through otfp::Simulation: a ball of
 // radius 1, empty at t = 0, held at rho = g on its surface; prints t, M/M_inf
 // (43) and Crank's uptake. Usage: ./sphere_simulation [n_inf] [t_end]
+#include <cmath>
 #include <cstdio>
 #include <string>
 
@@ -19,9 +20,11 @@ int main(int argc, char** argv) {
   o.width_s = pp.width_s;
   o.barrier_stiffness = pp.barrier_C;
   o.projection.layer_b = pp.layer_b;
-  // The converging treatment (docs/boundaries.md): a reservoir band of one cut-off radius.
+  // The converging treatment of `otfp run` (docs/boundaries.md): a reservoir band of
+  // one cut-off radius, half a spacing per sublayer.
   o.projection.dirichlet_mode = DirichletMode::Reservoir;
   o.projection.reservoir_thickness = cutoff_radius(pp.width_s, o.implicit.neighbor.kernel_tolerance);
+  o.projection.reservoir_sublayers = static_cast<int>(std::lround(2.0 * o.projection.reservoir_thickness / pp.dr));
   o.projection.reservoir_profile = ReservoirProfile::Odd;
   Simulation sim(ball, {{0, PatchKind::Dirichlet, g}}, o);
   sim.start(ParticleSet(3));

@@ -3,8 +3,9 @@
 python3-numpy and python3-matplotlib).
 
     python3 scripts/plot.py OUTDIR [--out PNGDIR]
-        mass.png     M/M_inf against t (inside, with the external layer), with
-                     Crank's curve when the run has a reference
+        mass.png     M/M_inf (particles inside) and M_rho/M_inf (blob density
+                     over Omega) against t with Crank's curve when the run has a
+                     reference, and a panel below with their errors against it
         inertia.png  J_G/J_inf against t with the analytic J_ref(t)/J_inf when
                      the run has a J_inf; otherwise J_G itself, and with
                      reference = "free_space" the blob density's second
@@ -79,15 +80,45 @@ def read_vtp(path):
     return arrays
 
 
+def is_particle_snapshot(path):
+    """A .vtp of particles (point data "age"), not the domain surface or another file."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(65536)
+    except OSError:
+        return False
+    head = head.split(b"<AppendedData", 1)[0]
+    return b"<PointData" in head and b'Name="age"' in head
+
+
 def last_snapshot(run_dir):
+    """The particle snapshot with the largest time: from particles.pvd (any
+    order of entries; files that are not particle snapshots, such as a domain
+    surface, are skipped), else the particles_NNNNN.vtp with the largest step."""
     pvd = os.path.join(run_dir, "particles.pvd")
     if os.path.exists(pvd):
         with open(pvd) as f:
-            files = re.findall(r'file="([^"]+)"', f.read())
-        if files:
-            return os.path.join(run_dir, files[-1])
-    files = sorted(f for f in os.listdir(run_dir) if re.fullmatch(r"particles_\d+\.vtp", f))
-    return os.path.join(run_dir, files[-1]) if files else None
+            entries = []
+            for i, tag in enumerate(re.findall(r"<DataSet\b[^>]*>", f.read())):
+                attrs = dict(re.findall(r'(\w+)="([^"]*)"', tag))
+                try:
+                    t = float(attrs.get("timestep", "nan"))
+                except ValueError:
+                    t = float("nan")
+                if "file" in attrs:
+                    entries.append((-math.inf if math.isnan(t) else t, i, attrs["file"]))
+        # Latest time first; among equal times the entry listed last.
+        for _, _, name in sorted(entries, reverse=True):
+            path = os.path.join(run_dir, name)
+            if is_particle_snapshot(path):
+                return path
+    steps = sorted((int(m.group(1)), f) for f in os.listdir(run_dir)
+                   for m in [re.fullmatch(r"particles_(\d+)\.vtp", f)] if m)
+    for _, name in reversed(steps):
+        path = os.path.join(run_dir, name)
+        if is_particle_snapshot(path):
+            return path
+    return None
 
 
 # ----------------------------------------------------------------- references
@@ -318,6 +349,64 @@ def draw_domain_1d(ax, summary):
     return handles
 
 
+# ----------------------------------------------------------------- mass
+
+def mass_figure(series, summary, title):
+    """M/M_inf (particles inside, (43)), M_rho/M_inf (the blob density over
+    Omega) and the reference on one axis; below, when there is a reference,
+    their errors against it; one legend under the panels, outside the data.
+    The with-layer mass (particles inside plus those in the Dirichlet buffer)
+    is drawn on the same axis only when it is of the same size: a reservoir
+    band can hold many times M_inf, and a second axis for it would dominate
+    the comparison (the final value is then given in the legend instead)."""
+    t = series["t"]
+    m_inf = summary["derived"]["M_inf"]
+    ref = reference_mass_ratio(series, summary)
+    inside = series["mass_inside"] / m_inf
+    blob = series["mass_blob_ratio"] if "mass_blob_ratio" in series else None
+    if ref is not None:
+        fig, (ax, axe) = plt.subplots(2, 1, figsize=(6.4, 6.2), sharex=True,
+                                      gridspec_kw={"height_ratios": [2.2, 1.0]})
+    else:
+        fig, ax = plt.subplots(figsize=(6.4, 4.6))
+        axe = None
+    handles = ax.plot(t, inside, color="tab:blue", label="M / M_inf (particles inside, (43))")
+    if blob is not None:
+        handles += ax.plot(t, blob, color="tab:green", ls="-.", label="M_rho / M_inf (blob density over Omega)")
+    if ref is not None:
+        name = MASS_REFERENCE_NAMES.get(summary["config"]["diagnostics"]["reference"], "reference")
+        handles += ax.plot(t, ref, "k:", lw=1.6, label=name)
+    with_layer = series["mass_with_layer"] / m_inf
+    drawn = [inside] + ([blob] if blob is not None else []) + ([ref] if ref is not None else [])
+    top = np.nanmax(np.abs(np.concatenate([np.ravel(v) for v in drawn])))
+    if np.any(with_layer != inside):
+        if np.nanmax(np.abs(with_layer)) <= 1.5 * max(top, 1e-300):
+            handles += ax.plot(t, with_layer, color="tab:orange", ls="--", label="with external layer")
+        else:
+            # An invisible handle: the legend says what is not drawn.
+            handles += ax.plot([], [], " ", label=f"with external layer (off scale): {with_layer[-1]:.3g} at t = {t[-1]:.3g}")
+    ax.set_ylabel("M / M_inf")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    if axe is not None:
+        err = series["error_mass_ratio"] if "error_mass_ratio" in series else inside - ref
+        # Same colours and styles as above: the legend needs no second entry.
+        axe.plot(t, err, color="tab:blue", label="error of M / M_inf")
+        if blob is not None:
+            err_blob = series["error_mass_blob"] if "error_mass_blob" in series else blob - ref
+            axe.plot(t, err_blob, color="tab:green", ls="-.", label="error of M_rho / M_inf")
+        axe.axhline(0.0, color="k", lw=0.8, ls=":")
+        axe.set_ylabel("error (value - reference)")
+        axe.grid(alpha=0.3)
+        axe.set_xlabel("t")
+    else:
+        ax.set_xlabel("t")
+    rows = (len(handles) + 1) // 2
+    fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.032 * rows + 0.01, 1, 1))
+    return fig
+
+
 # ----------------------------------------------------------------- run plots
 
 def plot_run(run_dir, out_dir):
@@ -327,24 +416,9 @@ def plot_run(run_dir, out_dir):
     t = series["t"]
     written = []
 
-    m_inf = der["M_inf"]
-    fig, ax = plt.subplots(figsize=(6, 4))
-    lines = ax.plot(t, series["mass_inside"] / m_inf, label="M / M_inf (inside, (43))")
-    primary = [series["mass_inside"] / m_inf]
-    ref = reference_mass_ratio(series, summary)
-    if ref is not None:
-        name = MASS_REFERENCE_NAMES.get(summary["config"]["diagnostics"]["reference"], "reference")
-        lines += ax.plot(t, ref, "k:", label=name)
-        primary.append(ref)
-    lines.insert(1, plot_with_layer(ax, t, series["mass_with_layer"] / m_inf, primary, "with external layer"))
-    ax.set_xlabel("t")
-    ax.set_ylabel("M / M_inf")
-    ax.set_title(os.path.basename(os.path.normpath(run_dir)))
-    ax.grid(alpha=0.3)
-    ax.legend(handles=lines)
-    fig.tight_layout()
+    fig = mass_figure(series, summary, os.path.basename(os.path.normpath(run_dir)))
     written.append(os.path.join(out_dir, "mass.png"))
-    fig.savefig(written[-1], dpi=120)
+    fig.savefig(written[-1], dpi=120, bbox_inches="tight")
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(6, 4))

@@ -14,4 +14,8 @@ rm -rf out/sphere_dirichlet
 PY=python3
 [ -x /usr/bin/python3 ] && PY=/usr/bin/python3
 "$PY" scripts/plot.py out/sphere_dirichlet
+# CI runs this script: a figure that is not drawn is a failure.
+for png in mass.png inertia.png slice.png; do
+  [ -s "out/sphere_dirichlet/$png" ] || { echo "run_example.sh: plot.py wrote no out/sphere_dirichlet/$png" >&2; exit 1; }
+done
 echo "outputs and plots in out/sphere_dirichlet/"

@@ -96,17 +96,105 @@ std::string xml_escaped(const std::string& s) {
 }
 }  // namespace
 
-std::string pvd_document(const std::vector<std::pair<double, std::string>>& entries, const std::string& static_file) {
+std::string pvd_document(const std::vector<std::pair<double, std::string>>& entries) {
   std::string xml = "<?xml version=\"1.0\"?>\n";
   xml += "<VTKFile type=\"Collection\" version=\"0.1\" byte_order=\"LittleEndian\">\n  <Collection>\n";
-  const std::string fixed = xml_escaped(static_file);
-  for (const auto& [t, file] : entries) {
+  for (const auto& [t, file] : entries)
     xml += fmt::format("    <DataSet timestep=\"{}\" group=\"\" part=\"0\" file=\"{}\"/>\n", t, xml_escaped(file));
-    if (!fixed.empty())
-      xml += fmt::format("    <DataSet timestep=\"{}\" group=\"\" part=\"1\" file=\"{}\"/>\n", t, fixed);
-  }
   xml += "  </Collection>\n</VTKFile>\n";
   return xml;
+}
+
+namespace {
+// A file name as Python source: os.fsdecode of a bytes literal, so that any
+// bytes (quotes, backslashes, newlines, non-UTF-8 names) survive.
+std::string python_path(const std::string& s) {
+  std::string out = "os.fsdecode(b\"";
+  for (unsigned char c : s) {
+    if (c >= 0x20 && c < 0x7f && c != '"' && c != '\\')
+      out += static_cast<char>(c);
+    else
+      out += fmt::format("\\x{:02x}", c);
+  }
+  return out + "\")";
+}
+}  // namespace
+
+std::string paraview_script(const std::string& particles_pvd, const std::string& domain_file,
+                            const std::string& run_dir) {
+  std::string py;
+  py += "# ParaView view of an otfp run, written by otfp (docs/outputs.md): the particles\n"
+        "# coloured by their blob density at the last snapshot, the domain as a\n"
+        "# translucent outline.\n"
+        "#   paraview --script=view.py                  interactive\n"
+        "#   pvpython view.py --screenshot view.png     saves the view and exits\n"
+        "# (without a display: xvfb-run -a pvpython view.py --screenshot view.png)\n"
+        "import os\n"
+        "import sys\n"
+        "\n"
+        "from paraview.simple import (ColorBy, GetActiveViewOrCreate, GetAnimationScene, PVDReader, Render,\n"
+        "                             SaveScreenshot, Show, XMLPolyDataReader)\n"
+        "\n";
+  py += "PARTICLES = " + python_path(particles_pvd) + "\n";
+  py += "DOMAIN = " + python_path(domain_file) + "  # empty: no domain surface (free space, periodic box)\n";
+  py += "RUN_DIR = " + python_path(run_dir) + "  # where otfp wrote the run\n";
+  py += R"py(
+
+def run_directory():
+    """This script's directory; ParaView's GUI runs --script without __file__."""
+    candidates = [RUN_DIR, os.getcwd()]
+    if "__file__" in globals():
+        candidates.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    for d in candidates:
+        if os.path.isfile(os.path.join(d, PARTICLES)):
+            return d
+    sys.exit(f"view.py: {PARTICLES} is neither beside this script, in {RUN_DIR} nor in the current directory")
+
+
+def show_run(d):
+    view = GetActiveViewOrCreate("RenderView")
+    particles = PVDReader(registrationName="particles", FileName=os.path.join(d, PARTICLES))
+    times = particles.TimestepValues  # a list, or one number for one snapshot
+    times = list(times) if hasattr(times, "__len__") else [times]
+    if times:
+        # The last snapshot. (Not UpdateAnimationUsingDataTimeSteps(): it
+        # hangs `paraview --script` at start-up; the GUI snaps to the data's
+        # times by itself.)
+        GetAnimationScene().AnimationTime = times[-1]
+    points = Show(particles, view)
+    points.SetRepresentationType("Points")
+    points.PointSize = 5
+    points.RenderPointsAsSpheres = 1
+    ColorBy(points, ("POINTS", "density"))
+    points.RescaleTransferFunctionToDataRange(True, False)
+    points.SetScalarBarVisibility(view, True)
+    if DOMAIN and os.path.isfile(os.path.join(d, DOMAIN)):
+        domain = XMLPolyDataReader(registrationName="domain", FileName=[os.path.join(d, DOMAIN)])
+        outline = Show(domain, view)
+        ColorBy(outline, None)
+        outline.AmbientColor = [0.55, 0.55, 0.55]
+        outline.DiffuseColor = [0.55, 0.55, 0.55]
+        outline.Opacity = 0.2
+    bounds = particles.GetDataInformation().GetBounds()
+    if bounds[4] == bounds[5]:  # a 1-D or 2-D run: points in the plane z = 0
+        view.InteractionMode = "2D"
+    view.ResetCamera()
+    Render(view)
+    return view
+
+
+def main(argv):
+    view = show_run(run_directory())
+    if "--screenshot" in argv:
+        i = argv.index("--screenshot")
+        if i + 1 >= len(argv):
+            sys.exit("view.py: --screenshot needs a file name")
+        SaveScreenshot(argv[i + 1], view, ImageResolution=[1000, 800], FontScaling="Do not scale fonts")
+
+
+main(sys.argv)
+)py";
+  return py;
 }
 
 }  // namespace otfp

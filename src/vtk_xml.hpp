@@ -11,6 +11,7 @@ static_assert(std::endian::native == std::endian::little, "the VTK writers decla
 
 template <class T> constexpr const char* vtk_type_name();
 template <> constexpr const char* vtk_type_name<double>() { return "Float64"; }
+template <> constexpr const char* vtk_type_name<float>() { return "Float32"; }
 template <> constexpr const char* vtk_type_name<std::int64_t>() { return "Int64"; }
 template <> constexpr const char* vtk_type_name<std::int32_t>() { return "Int32"; }
 

@@ -33,6 +33,32 @@ TEST(Analytic, ShortTimeFormsJoinTheSeries) {
   }
 }
 
+// Below tau = 1e-6 the uptakes switch from Crank's series to the short-time
+// forms (the series would need ~1/sqrt(tau) terms): the sphere's
+// 6 sqrt(tau/pi) - 3 tau (Crank 6.21) and the slab's 2 sqrt(tau/pi) (Crank
+// 4.20, the semi-infinite solid). Each branch has its value, and the two join
+// continuously across the switch (their difference there, ~exp(-1/tau), is
+// far below double precision).
+TEST(Analytic, ShortTimeBranchesHaveTheirValueAndJoinContinuously) {
+  for (double tau : {1e-12, 3.7e-9, 2.5e-7, 9.9e-7}) {
+    const double sphere = 6.0 * std::sqrt(tau / M_PI) - 3.0 * tau;
+    const double slab = 2.0 * std::sqrt(tau / M_PI);
+    EXPECT_NEAR(crank_sphere_uptake(tau), sphere, 1e-15 * sphere) << tau;
+    EXPECT_NEAR(crank_slab_uptake(tau), slab, 1e-15 * slab) << tau;
+  }
+  // (The sphere's -3 tau is 0.04 % of the value at tau = 2.5e-7: the
+  // tolerance above, 1e-15 relative, sees it many times over.)
+  // Across the switch: tau just below and at 1e-6 (the series), where the
+  // values' slope is 3/sqrt(pi tau) ~ 1.7e3 (sphere) and 1.1e3 (slab).
+  const double below = std::nextafter(1e-6, 0.0), at = 1e-6;
+  EXPECT_NEAR(crank_sphere_uptake(below), crank_sphere_uptake(at), 1e-13);
+  EXPECT_NEAR(crank_slab_uptake(below), crank_slab_uptake(at), 1e-13);
+  // And the series at the switch is the short-time form (Crank 6.21: the
+  // remainder is of order exp(-1/tau)).
+  EXPECT_NEAR(crank_sphere_uptake(at), 6.0 * std::sqrt(at / M_PI) - 3.0 * at, 1e-13);
+  EXPECT_NEAR(crank_slab_uptake(at), 2.0 * std::sqrt(at / M_PI), 1e-13);
+}
+
 TEST(Analytic, FreeSpaceAndCosineMode) {
   EXPECT_DOUBLE_EQ(free_space_variance_growth(0.5, 3.0), 3.0);
   EXPECT_NEAR(cosine_mode_decay(1.0, 2.0 * M_PI, 0.01), std::exp(-0.04 * M_PI * M_PI), 1e-16);

@@ -256,6 +256,33 @@ TEST(BoundaryProjection, NeumannTimeDependentFluxIsIntegratedInTime) {
   EXPECT_EQ(led.inserted, static_cast<long>(ps.size()));
 }
 
+// The time quadrature of the flux is Simpson's rule, exact for f quadratic in
+// t: f = -3 t^2 (uniform over the x- face, area 1; inflow) brings exactly
+// int_a^b 3 t^2 dt = b^3 - a^3 in one step, and 1 over ten steps to t = 1.
+// (The test above, with f linear in t, cannot tell Simpson from the midpoint
+// or the trapezoid rule, and its spatial Monte Carlo hides small weights.)
+TEST(BoundaryProjection, NeumannFluxQuadratureIsExactForQuadraticTime) {
+  const auto box = make_box(3, Vec3(0, 0, 0), Vec3(1, 1, 1));
+  const BoundaryData f = [](const Vec3&, double t) { return -3.0 * t * t; };
+  {
+    BoundaryProjection bp(box, {condition(0, PatchKind::Neumann, f, false)}, options_with_b(0.1), 0.01, 0.05);
+    ParticleSet ps(3);
+    Rng rng(5);
+    bp.apply(ps, 0.2, 0.5, rng);
+    const double exact = 0.7 * 0.7 * 0.7 - 0.2 * 0.2 * 0.2;  // 0.335
+    // (Up to rounding: f is averaged over the quadrature's 200000 points.)
+    EXPECT_NEAR(bp.ledger()[0].flux_integral, exact, 1e-10);
+  }
+  BoundaryProjection bp(box, {condition(0, PatchKind::Neumann, f, false)}, options_with_b(0.1), 0.01, 0.05);
+  ParticleSet ps(3);
+  Rng rng(6);
+  for (int k = 0; k < 10; ++k) bp.apply(ps, 0.1 * k, 0.1, rng);
+  const PatchLedger& led = bp.ledger()[0];
+  EXPECT_NEAR(led.flux_integral, 1.0, 1e-10);
+  EXPECT_NEAR(led.mass_inserted - led.mass_removed + led.carry, led.flux_integral, 1e-12);
+  EXPECT_EQ(led.inserted, static_cast<long>(ps.size()));
+}
+
 // Outflow of 0.37 particles per step through the x+ face, with only 5
 // particles in B_l: the rest is owed, never lost, and paid once particles come.
 TEST(BoundaryProjection, NeumannOutflowRecordsDeficitWithoutLosingMass) {

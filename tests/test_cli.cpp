@@ -582,12 +582,8 @@ TEST(Cli, OutputFilesAreCompleteAndVtkParses) {
   std::vector<std::string> files;
   for (std::size_t pos = pvd.find("<DataSet"); pos != std::string::npos; pos = pvd.find("<DataSet", pos + 1))
     files.push_back(attributes(pvd.substr(pos, pvd.find('>', pos) - pos)).at("file"));
-  // Each time also shows domain.vtp, the boundary surface (part 1).
-  std::vector<std::string> particle_files;
-  for (const std::string& f : files)
-    if (f != "domain.vtp") particle_files.push_back(f);
-  EXPECT_EQ(files.size(), 2 * particle_files.size());
-  files = particle_files;
+  // Only the snapshots: domain.vtp, the boundary surface, is a file of its own
+  // (listed here, ParaView drew it opaque over the particles; issue 23).
   ASSERT_EQ(files, (std::vector<std::string>{"particles_00000.vtp", "particles_00004.vtp", "particles_00008.vtp",
                                              "particles_00010.vtp"}));
   const std::string surface = read_text(dir / "domain.vtp");

@@ -189,6 +189,64 @@ TEST(NeighborList, StaysValidForMovesWithinHalfTheSkin) {
   EXPECT_TRUE(nl.needs_rebuild(x, s));
 }
 
+// The rebuild rule along a trajectory: particles drift in small random steps
+// (some pairs head straight for each other) and widths creep up; the list is
+// rebuilt only when needs_rebuild() says so. Whenever it says no, every pair
+// within its cut-off is in the list (brute force); and the rule is not
+// wasteful: while 2 x the largest displacement plus the cut-off growth stays
+// below 0.9 x the skin it never asks (a step uses at most ~11 % of it).
+TEST(NeighborList, RebuildRuleKeepsEveryPairAlongATrajectory) {
+  const int dim = 2;
+  ParticleSet ps = random_cloud(dim, 400, 0.0, 1.0, 0.02, 0.3, 1.0, 11);
+  auto x = ps.positions();
+  auto s = ps.widths();
+  // Head-on pairs: partners placed just beyond the list radius on either side.
+  NeighborList nl;
+  nl.build(x, s, Periodicity::none(dim));
+  const double tol = nl.options().kernel_tolerance;
+  for (std::size_t p = 0; p < 20; p += 2) {
+    x[p + 1] = x[p] + Vec3(nl.particle_radius(std::max(s[p], s[p + 1])) * 1.001, 0.0, 0.0);
+  }
+  nl.build(x, s, Periodicity::none(dim));
+  auto x_build = x;
+  auto s_build = s;
+  Rng rng(12);
+  int rebuilds = 0, checked = 0;
+  for (int step = 0; step < 300; ++step) {
+    const double h = 0.04 * nl.skin();
+    for (std::size_t p = 0; p < x.size(); ++p) {
+      if (p < 20)  // the pairs approach each other along x
+        x[p] += Vec3(p % 2 ? -h : h, 0.0, 0.0);
+      else
+        x[p] += h * Vec3(rng.normal(), rng.normal(), 0.0).normalized();
+      s[p] *= 1.0 + 2e-3 * rng.uniform();  // the cut-off grows by up to ~3 % of the skin per step
+    }
+    double disp = 0.0, growth = 0.0;
+    for (std::size_t p = 0; p < x.size(); ++p) {
+      disp = std::max(disp, (x[p] - x_build[p]).norm());
+      growth = std::max(growth, s[p] - s_build[p]);
+    }
+    const double used = 2.0 * disp + cutoff_radius(growth, tol);
+    if (nl.needs_rebuild(x, s)) {
+      EXPECT_GT(used, 0.9 * nl.skin()) << "step " << step << ": a rebuild before the skin is used up";
+      nl.build(x, s, Periodicity::none(dim));
+      x_build = x;
+      s_build = s;
+      ++rebuilds;
+      continue;
+    }
+    ++checked;
+    const PairSet listed = list_pairs(nl);
+    for (std::uint32_t p = 0; p < x.size(); ++p)
+      for (std::uint32_t q = 0; q < x.size(); ++q)
+        if (p != q && (x[p] - x[q]).norm() <= cutoff_radius(std::max(s[p], s[q]), tol)) {
+          ASSERT_TRUE(listed.count({p, q})) << "step " << step << ": pair " << p << "," << q << " missing";
+        }
+  }
+  EXPECT_GT(rebuilds, 5);
+  EXPECT_GT(checked, 200);
+}
+
 TEST(NeighborList, RebuildAfterInsertionsAndDeletionsMatchesBruteForce) {
   const int dim = 2;
   ParticleSet ps = random_cloud(dim, 800, 0.0, 1.0, 0.02, 0.3, 1.0, 77);

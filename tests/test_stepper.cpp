@@ -399,6 +399,76 @@ TEST(ExplicitStepper, ExternalPotentialMovesIsolatedBlobsByItsForce) {
   }
 }
 
+// The barrier's force in every explicit scheme: blobs outside a 1-D box
+// [0, 1] under Barrier(box, C) feel Psi = C/2 dist^2 only (each is alone
+// within its cut-off, so its entropy force is zero): the distance y = dist
+// follows y' = -C y, so Euler moves it to y (1 - h) and RK4 to
+// y (1 - h + h^2/2 - h^3/6 + h^4/24), h = C dt, both inward; every stage of
+// RK4 stays outside for h <= 1. The barrier energy is sum m C/2 dist^2.
+TEST(ExplicitStepper, BarrierPullsBlobsOutsideTheBoxInwardByTheSchemesAmount) {
+  const double C = 40.0, dt = 0.0125, h = C * dt;  // h = 0.5
+  const DomainPtr box = make_box(1, Vec3(0.0, 0.0, 0.0), Vec3(1.0, 0.0, 0.0));
+  // Outside at both ends (a wall to the right and one to the left), and one inside.
+  const std::vector<double> x0 = {1.5, -0.25, 0.5}, wall = {1.0, 0.0, 0.5};
+  for (ExplicitScheme scheme :
+       {ExplicitScheme::EulerForce27, ExplicitScheme::EulerExactGradient, ExplicitScheme::Rk4Force27}) {
+    ParticleSet ps(1);
+    for (double x : x0) ps.add(Vec3(x, 0.0, 0.0), 0.01, 2.0);
+    ExplicitOptions o;
+    o.scheme = scheme;
+    o.sort_particles = false;
+    ExplicitStepper st(1, o, Barrier(box, C));
+    const StepSummary sum = st.step(ps, dt);
+    ASSERT_TRUE(sum.accepted) << to_string(scheme);
+    const double g = scheme == ExplicitScheme::Rk4Force27 ? 1.0 - h + h * h / 2 - h * h * h / 6 + h * h * h * h / 24
+                                                          : 1.0 - h;
+    double e_before = 0.0, e_after = 0.0;
+    for (std::size_t i = 0; i < x0.size(); ++i) {
+      const double y0 = x0[i] - wall[i], y1 = ps.positions()[i][0] - wall[i];
+      EXPECT_NEAR(y1, g * y0, 1e-13) << to_string(scheme) << " blob at " << x0[i];
+      if (i < 2) {
+        EXPECT_LT(std::abs(y1), std::abs(y0)) << "inward";
+        e_before += 2.0 * 0.5 * C * y0 * y0;
+        e_after += 2.0 * 0.5 * C * y1 * y1;
+      }
+    }
+    EXPECT_NEAR(sum.parts_before.barrier, e_before, 1e-12 * e_before);
+    EXPECT_NEAR(sum.parts_after.barrier, e_after, 1e-12 * e_after);
+  }
+}
+
+// RK4's order on a nonlinear problem with a known solution: isolated blobs in
+// U = -cos x follow x' = -sin x, x(t) = 2 atan(tan(x0 / 2) e^-t). The error at
+// T = 1 falls 16-fold per halving of dt (Euler's 2-fold).
+TEST(ExplicitStepper, Rk4IsFourthOrderOnANonlinearForce) {
+  const double T = 1.0;
+  const std::vector<double> x0 = {1.0, 2.0, -2.5};
+  for (ExplicitScheme scheme : {ExplicitScheme::Rk4Force27, ExplicitScheme::EulerForce27}) {
+    std::vector<double> errors;
+    for (int steps : {4, 8, 16, 32}) {
+      ParticleSet ps(1);
+      for (double x : x0) ps.add(Vec3(x, 0.0, 0.0), 0.01, 1.0);
+      ExplicitOptions o;
+      o.scheme = scheme;
+      o.sort_particles = false;
+      ExplicitStepper st(1, o);
+      st.set_external_potential([](const Vec3& x, Vec3* g) {
+        if (g) *g = Vec3(std::sin(x[0]), 0.0, 0.0);
+        return -std::cos(x[0]);
+      });
+      for (int n = 0; n < steps; ++n) ASSERT_TRUE(st.step(ps, T / steps).accepted);
+      double e = 0.0;
+      for (std::size_t i = 0; i < x0.size(); ++i)
+        e = std::max(e, std::abs(ps.positions()[i][0] - 2.0 * std::atan(std::tan(0.5 * x0[i]) * std::exp(-T))));
+      errors.push_back(e);
+    }
+    const double expected = scheme == ExplicitScheme::Rk4Force27 ? 4.0 : 1.0;
+    for (std::size_t j = 1; j < errors.size(); ++j)
+      EXPECT_NEAR(std::log2(errors[j - 1] / errors[j]), expected, 0.15)
+          << to_string(scheme) << ": errors " << errors[j - 1] << " -> " << errors[j];
+  }
+}
+
 TEST(ImplicitStepper, NonFiniteObjectiveLeavesStateUntouched) {
   const int dim = 2;
   ParticleSet ps = ball_cloud(dim, 20, 0.5, 0.2, 8);

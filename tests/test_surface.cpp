@@ -144,15 +144,36 @@ TEST(Surface, VtpDeclaresCellsOfTheRightKind) {
   const std::string d2 = surface_vtp(m2);
   EXPECT_NE(d2.find("NumberOfLines=\"" + std::to_string(m2.num_cells()) + "\""), std::string::npos);
   EXPECT_NE(d2.find("<Lines>"), std::string::npos);
-  // The offsets block ends at dim * cells.
+  // The offsets block (Int32: a display mesh's indices fit) ends at dim * cells.
+  EXPECT_NE(d2.find("<DataArray type=\"Int32\" Name=\"offsets\""), std::string::npos);
   const std::size_t start = d2.find("_", d2.find("<AppendedData")) + 1;
   const std::size_t tag = d2.find("Name=\"offsets\"");
   const std::size_t off = std::stoull(d2.substr(d2.find("offset=\"", tag) + 8));
   std::uint64_t bytes = 0;
   std::memcpy(&bytes, d2.data() + start + off, 8);
-  ASSERT_EQ(bytes, 8 * m2.num_cells());
-  std::int64_t last = 0;
-  std::memcpy(&last, d2.data() + start + off + bytes, 8);
-  std::memcpy(&last, d2.data() + start + off + 8 + bytes - 8, 8);
-  EXPECT_EQ(last, static_cast<std::int64_t>(2 * m2.num_cells()));
+  ASSERT_EQ(bytes, 4 * m2.num_cells());
+  std::int32_t last = 0;
+  std::memcpy(&last, d2.data() + start + off + 8 + bytes - 4, 4);
+  EXPECT_EQ(last, static_cast<std::int32_t>(2 * m2.num_cells()));
+}
+
+TEST(Surface, VtpStoresADisplayMeshCompactly) {
+  // Float32 points and Int32 connectivity: 12 bytes per point, 3 x 4 + 4 + 4
+  // per triangle (connectivity, offset, patch) plus the XML (issue 23: the
+  // sphere's domain.vtp was 2.3 MB, more than a particle snapshot).
+  const SurfaceMesh m = boundary_surface(*make_ball(3, Vec3::Zero(), 1.0), 0.0, 16);
+  const std::string doc = surface_vtp(m);
+  EXPECT_NE(doc.find("<DataArray type=\"Float32\" Name=\"position\" NumberOfComponents=\"3\""), std::string::npos);
+  EXPECT_NE(doc.find("<DataArray type=\"Int32\" Name=\"connectivity\""), std::string::npos);
+  const std::size_t data = 12 * m.points.size() + 20 * m.num_cells() + 4 * 8;
+  EXPECT_LE(doc.size(), data + 1024);
+  EXPECT_GE(doc.size(), data);
+  // The points are the mesh's, to Float32 precision.
+  const std::size_t start = doc.find("_", doc.find("<AppendedData")) + 1;
+  const std::size_t tag = doc.find("Name=\"position\"");
+  const std::size_t off = std::stoull(doc.substr(doc.find("offset=\"", tag) + 8));
+  std::vector<float> xyz(3 * m.points.size());
+  std::memcpy(xyz.data(), doc.data() + start + off + 8, 4 * xyz.size());
+  for (std::size_t p = 0; p < m.points.size(); ++p)
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(xyz[3 * p + k], m.points[p][k], 1e-6);
 }

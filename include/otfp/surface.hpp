@@ -41,7 +41,8 @@ double surface_measure(const SurfaceMesh& mesh);
 double surface_measure(const SurfaceMesh& mesh, int patch);
 
 // VTK XML PolyData of the mesh (Polys, Lines or Verts by dimension), cell
-// data `patch` (Int32), raw appended binary like vtp_document().
+// data `patch` (Int32), raw appended binary like vtp_document(). A display
+// file: Float32 points, and Int32 connectivity and offsets when they fit.
 std::string surface_vtp(const SurfaceMesh& mesh);
 
 }  // namespace otfp

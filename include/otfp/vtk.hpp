@@ -22,10 +22,21 @@ namespace otfp {
 std::string vtp_document(const ParticleSet& particles, double t, const std::vector<std::int32_t>& region = {},
                          const std::vector<double>& density = {});
 
-// ParaView collection (.pvd) of (time, file) entries, part 0. A non-empty
-// `static_file` (e.g. the domain surface of otfp/surface.hpp) is added as
-// part 1 at every time, so ParaView shows it throughout the series.
-std::string pvd_document(const std::vector<std::pair<double, std::string>>& entries,
-                         const std::string& static_file = {});
+// ParaView collection (.pvd) of (time, file) entries, part 0. Only the
+// particles: a domain surface listed here as a second part would be drawn
+// opaque by ParaView's defaults and hide every particle (issue 23), so it is
+// a file of its own that paraview_script() shows translucent.
+std::string pvd_document(const std::vector<std::pair<double, std::string>>& entries);
+
+// A ParaView Python script (run with `pvpython view.py`, `paraview
+// --script=view.py`, or from ParaView's Python shell) that opens
+// `particles_pvd` (a pvd_document) with the particles as points coloured by
+// their `density`, at the last time, and, when `domain_file` is not empty,
+// that surface (surface_vtp of otfp/surface.hpp) as a translucent grey
+// outline. File names are relative to the script's directory; `run_dir` is
+// where the script looks when Python does not tell it its own path (ParaView's
+// GUI). `pvpython view.py --screenshot FILE.png` saves the view and exits.
+std::string paraview_script(const std::string& particles_pvd, const std::string& domain_file,
+                            const std::string& run_dir);
 
 }  // namespace otfp

@@ -24,7 +24,8 @@ namespace {
 bool is_run_output(const std::string& name) {
   static const char* const fixed[] = {"series.csv",      "timing.csv",          "summary.json",
                                       "config.toml",     "checkpoint.bin",      "particles_final.csv",
-                                      "domain.vtp",      "particles.pvd",       "particles_failed.vtp"};
+                                      "domain.vtp",      "particles.pvd",       "particles_failed.vtp",
+                                      "view.py"};
   const auto digits = [](const std::string& t, std::size_t min) {
     return t.size() >= min && std::all_of(t.begin(), t.end(), [](char c) { return c >= '0' && c <= '9'; });
   };

@@ -1080,8 +1080,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
                    c.solver.kernel_tolerance, rho, nullptr);
     write_file_atomic(out / name, vtp_document(particles, r.t, region, rho));
     snapshots.emplace_back(r.t, name);
-    write_file_atomic(out / "particles.pvd",
-                      pvd_document(snapshots, std::filesystem::exists(out / "domain.vtp") ? "domain.vtp" : ""));
+    write_file_atomic(out / "particles.pvd", pvd_document(snapshots));
     last_snapshot = r.step;
   };
 
@@ -1218,23 +1217,30 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
 
   // domain.vtp: the boundary of Omega and, where there is one, the outer
   // surface of the buffer over the Dirichlet patches (its cells carry patch
-  // id + the number of patches), shown by particles.pvd at every time.
+  // id + the number of patches). A coarse display mesh in a file of its own:
+  // listed in particles.pvd, ParaView would draw it opaque over the
+  // particles. view.py (ParaView) shows the particles with it translucent.
   auto write_domain_surface = [&](const std::filesystem::path& dir) {
-    if (free_space_) return;
-    const int cells = dim == 3 ? 32 : 256;  // a display mesh: ~1 MB in 3-D
-    SurfaceMesh mesh = boundary_surface(*domain_, 0.0, cells);
-    std::vector<int> dirichlet;
-    for (const PatchInfo& p : patches_)
-      if (p.kind == "dirichlet") dirichlet.push_back(p.id);
-    const double buffer = sim.buffer().buffer_width;
-    if (!dirichlet.empty() && buffer > 0.0) {
-      const SurfaceMesh outer = boundary_surface(*domain_, buffer, cells, dirichlet);
-      const auto base = static_cast<std::int64_t>(mesh.points.size());
-      mesh.points.insert(mesh.points.end(), outer.points.begin(), outer.points.end());
-      for (std::int64_t i : outer.cells) mesh.cells.push_back(base + i);
-      for (int patch : outer.patch) mesh.patch.push_back(patch + domain_->num_patches());
+    bool surface = false;
+    if (!free_space_) {
+      const int cells = dim == 3 ? 12 : 256;  // the sphere with its buffer: ~7k triangles, 0.14 MB
+      SurfaceMesh mesh = boundary_surface(*domain_, 0.0, cells);
+      std::vector<int> dirichlet;
+      for (const PatchInfo& p : patches_)
+        if (p.kind == "dirichlet") dirichlet.push_back(p.id);
+      const double buffer = sim.buffer().buffer_width;
+      if (!dirichlet.empty() && buffer > 0.0) {
+        const SurfaceMesh outer = boundary_surface(*domain_, buffer, cells, dirichlet);
+        const auto base = static_cast<std::int64_t>(mesh.points.size());
+        mesh.points.insert(mesh.points.end(), outer.points.begin(), outer.points.end());
+        for (std::int64_t i : outer.cells) mesh.cells.push_back(base + i);
+        for (int patch : outer.patch) mesh.patch.push_back(patch + domain_->num_patches());
+      }
+      surface = mesh.num_cells() > 0;
+      if (surface) write_file_atomic(dir / "domain.vtp", surface_vtp(mesh));
     }
-    if (mesh.num_cells() > 0) write_file_atomic(dir / "domain.vtp", surface_vtp(mesh));
+    write_file_atomic(dir / "view.py", paraview_script("particles.pvd", surface ? "domain.vtp" : "",
+                                                       std::filesystem::absolute(dir).string()));
   };
 
   const bool progress = options.progress;
