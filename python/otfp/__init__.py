@@ -150,6 +150,7 @@ def converging_options(domain, boundary, n_inf, length_L, particle_mass, kappa=1
         projection.reservoir_thickness = r_c
         projection.reservoir_sublayers = max(1, math.floor(2.0 * r_c / pp.dr + 0.5))  # about half a spacing each
         projection.reservoir_profile = "odd"
+        projection.reservoir_control = "quiet"  # treatment.reservoir_control
     opts.projection = projection
     if str(opts.stepper) == "implicit":
         implicit = opts.implicit

@@ -522,6 +522,9 @@ PYBIND11_MODULE(_otfp, m) {
   bind_enum<ReservoirProfile>(m, "ReservoirProfile",
                               {{"Uniform", ReservoirProfile::Uniform}, {"Odd", ReservoirProfile::Odd}},
                               reservoir_profile_from_string);
+  bind_enum<ReservoirControl>(m, "ReservoirControl",
+                              {{"Quiet", ReservoirControl::Quiet}, {"Exact", ReservoirControl::Exact}},
+                              reservoir_control_from_string);
   bind_enum<DirichletTarget>(m, "DirichletTarget",
                              {{"CellIntegral", DirichletTarget::CellIntegral}, {"PaperEq34", DirichletTarget::PaperEq34}},
                              dirichlet_target_from_string);
@@ -706,6 +709,7 @@ PYBIND11_MODULE(_otfp, m) {
       .field("gradient_tolerance", &MinimizerOptions::gradient_tolerance, "set per step by the stepper")
       .field("relative_gradient_tolerance", &MinimizerOptions::relative_gradient_tolerance, "0: off")
       .field("gradient_tolerance_floor", &MinimizerOptions::gradient_tolerance_floor, "floor of the relative rule")
+      .field("start_tolerance", &MinimizerOptions::start_tolerance, "a start below this is converged (0: off)")
       .field("function_tolerance", &MinimizerOptions::function_tolerance, "0: off")
       .field("max_iterations", &MinimizerOptions::max_iterations, "iteration cap")
       .field("max_evaluations", &MinimizerOptions::max_evaluations, "evaluation cap")
@@ -771,6 +775,9 @@ PYBIND11_MODULE(_otfp, m) {
       .field("reservoir_sublayers", &ProjectionOptions::reservoir_sublayers, "0: about one spacing each")
       .field("reservoir_volume_samples", &ProjectionOptions::reservoir_volume_samples, "Monte Carlo points")
       .field("reservoir_profile", &ProjectionOptions::reservoir_profile, "uniform | odd")
+      .field("reservoir_control", &ProjectionOptions::reservoir_control, "quiet | exact")
+      .field("reservoir_tolerance", &ProjectionOptions::reservoir_tolerance, "quiet: deficit (particles) to act on")
+      .field("reservoir_candidates", &ProjectionOptions::reservoir_candidates, "quiet: candidate points per particle")
       .field("absorb_exterior", &ProjectionOptions::absorb_exterior, "layer: remove stranded exterior particles")
       // The reservoir band's domain is built by the Simulation, not given here.
       .validated([](const ProjectionOptions& o) { o.validate(/*require_reservoir_domain=*/false); })
@@ -1105,6 +1112,12 @@ PYBIND11_MODULE(_otfp, m) {
              return py::make_tuple(ms, py::array_t<std::int32_t>(static_cast<py::ssize_t>(region.size()), region.data()));
            },
            py::arg("center"), "(StateMeasures, region per particle: 0 inside, 1 buffer, 2 elsewhere)")
+      .def("blob_mass",
+           [](PySimulation& s) {
+             auto held = s.lock.hold();
+             return s.object->blob_mass();
+           },
+           "M_rho: the blob density integrated over Omega, image blobs at mirrored walls included")
       .def("save_checkpoint",
            [](PySimulation& s, const std::filesystem::path& path, const std::string& extra) {
              auto held = s.lock.hold();

@@ -1,3 +1,4 @@
+import math
 """otfp.Simulation from Python: the same steps as the C++ command-line tool
 bit for bit, the observer, checkpoints and bad input."""
 import subprocess
@@ -151,3 +152,32 @@ def test_brief_report_prints_six_significant_digits():
     f_text = report.split("F = ")[1].split(",")[0]
     assert float(f_text) == pytest.approx(step.diffusion.f_after, rel=1e-5)
     assert len(f_text.lstrip("-").replace(".", "").split("e")[0].lstrip("0")) <= 6
+
+
+def test_quiet_reservoir_is_the_default_and_exact_is_one_field_away():
+    import otfp
+    ball = otfp.make_ball(3, [0, 0, 0], 1.0)
+    g = 3.0 / (4.0 * 3.141592653589793)
+    data = [otfp.BoundaryData(patch=0, kind="dirichlet", value=g)]
+    opts = otfp.converging_options(ball, data, n_inf=100, length_L=1.0, particle_mass=0.01)
+    assert str(opts.projection.reservoir_control) == "quiet"
+    quiet = otfp.Simulation(ball, data, opts)
+    quiet.start(otfp.ParticleSet(3), 0.0)
+    # The quiet control draws no random numbers: two seeds give the same run.
+    seed = opts.seed
+    opts.seed = seed + 1
+    twin = otfp.Simulation(ball, data, opts)
+    opts.seed = seed
+    twin.start(otfp.ParticleSet(3), 0.0)
+    assert (quiet.particles.positions == twin.particles.positions).all()
+    # M_rho of the band alone is its tails inside Omega: a half-space at 2 g
+    # spills 2 g sigma / sqrt(2 pi) per unit area (sigma = s / sqrt 2 per axis).
+    sigma = opts.width_s / math.sqrt(2.0)
+    spill = 2.0 * g * 4.0 * math.pi * sigma / math.sqrt(2.0 * math.pi)
+    assert abs(quiet.blob_mass() - spill) < 0.25 * spill
+    projection = opts.projection
+    projection.reservoir_control = "exact"
+    opts.projection = projection
+    exact = otfp.Simulation(ball, data, opts)
+    exact.start(otfp.ParticleSet(3), 0.0)
+    assert len(exact.particles) > 0
