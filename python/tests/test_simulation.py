@@ -1,6 +1,6 @@
-import math
 """otfp.Simulation from Python: the same steps as the C++ command-line tool
 bit for bit, the observer, checkpoints and bad input."""
+import math
 import subprocess
 
 import numpy as np
