@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <limits>
 #include <numbers>
+#include <optional>
 #include <queue>
 #include <stdexcept>
 #include <string>
@@ -16,6 +17,7 @@
 #include "cell_grid.hpp"
 #include "placement_density.hpp"
 #include "otfp/images.hpp"
+#include "otfp/mass_measure.hpp"
 #include "otfp/neighbor_list.hpp"
 #include "otfp/boundary.hpp"
 
@@ -41,10 +43,8 @@ constexpr double kVolumeAgreementSigmas = 4.0;
 // Quiet control: the sublayer next to the band's back wall is corrected only
 // when its deficit exceeds this fraction of its target (see project_reservoir_quiet).
 constexpr double kBackTolerance = 0.05;
-// Quiet control: a sublayer's deficit is measured on 1 / (this x
-// reservoir_candidates) of its candidates, one per two particles of its
-// largest target.
-constexpr std::size_t kProbeFraction = 2;
+// Quiet control: blobs farther than this many widths from a depth interval put no mass in it.
+constexpr double kTailWidths = 7.0;
 // Quiet control: at least this many candidate points per sublayer.
 constexpr std::size_t kMinCandidates = 64;
 
@@ -232,6 +232,10 @@ void BoundaryProjection::build_reservoir(std::size_t i) {
     r.mirror_mass.assign(K, 0.0);
   }
   if (options_.reservoir_control == ReservoirControl::Quiet) {
+    // The quiet control measures depths from the patch's wall surface.
+    if (!r.wall) r.wall = domain_->patch_wall(c.patch);
+    require(r.wall != nullptr, "boundary.reservoir_control", "quiet",
+            "needs a wall surface for patch " + name + " (this domain has none; use exact)");
     // Fixed candidate points of each sublayer, reservoir_candidates per
     // particle of its largest target (2 g with the odd profile), at least
     // kMinCandidates: the quiet control places particles only there, so that
@@ -397,25 +401,28 @@ void BoundaryProjection::project_reservoir(std::size_t i, std::vector<std::vecto
 // boundary point is on A_l; otherwise also |x - c| - rho for the sphere
 // (c, rho) around the points on A_l), and exact distances are evaluated in
 // Quiet control (docs/boundaries.md, "Quiet reservoir"). What the face must
-// see is the blob density (29): with the odd profile, rho(c) + rho(R c) = 2 g
-// for every band point c and its mirror image R c inside Omega (the smoothed
-// form of "u - g is odd across the face": the kernel is even, so a field odd
-// about g has a smoothed density odd about g). Counts of particles are the
-// wrong measure: a settled band layers parallel to its walls, a sublayer half
-// a spacing thick catches one layer or the gap between two, and holding such
-// counts fights the dynamics every step (the exact control's churn). So the
-// deficit of sublayer j is measured on fixed probe points,
-//   D_j = |sublayer j| / m_p x mean over probes of (T(c) - rho(c)),
-//   T(c) = clamp(2 g - rho(R c), 0, 2 g) (odd) or g (uniform),
-// rho with the image blobs the functional has, and sublayer j is corrected
-// only when |D_j| > reservoir_tolerance, by round(D_j) particles: removed
-// where rho - T is largest, put at the candidate points where T - rho is
-// largest, the densities updated after each particle. The sublayer next to
-// the back wall (K >= 2) is corrected only when it is off by more than 5% of
-// its target: its density is what the wall makes of it (at the sphere's
-// curved back wall the settled state reads 1-2% off, and holding it to one
-// particle cost 11 insertions and removals per step in a steady state), and
-// its neighbour, which is held, feeds it. Deterministic: no random numbers.
+// see is the blob density (29), not a count of centres: a settled band layers
+// parallel to its walls, a sublayer half a spacing thick catches one layer or
+// the gap between two, and holding such counts fights the dynamics every step
+// (the exact control's churn). With the odd profile the smoothed form of
+// "u - g is odd across the face" is rho(c) + rho(R c) = 2 g (the kernel is
+// even), which over sublayer j reads
+//   M_j = 2 g |sublayer j| - M'_j |sublayer j| / |mirror j|,
+// M_j the blob mass in the sublayer (its tail beyond the back wall folded
+// back, as the image there does) and M'_j the blob mass in its mirror image
+// inside Omega. The deficit D_j = (target - M_j) / m_p is left alone while
+// |D_j| <= reservoir_tolerance; otherwise round(D_j) particles leave where
+// the blob density (images included) exceeds the pointwise target
+// T(c) = clamp(2 g - rho(R c), 0, 2 g) most, or are put at the fixed
+// candidate points where it falls short most, the densities updated after
+// each particle. The sublayer next to the back wall (K >= 2) is corrected
+// only when it is off by more than 5% of its target: its density is what the
+// wall makes of it (at the sphere's curved back wall the settled state reads
+// 1-2% off, and holding it to one particle cost 11 insertions and removals per
+// step in a steady state), and its neighbour, which is held, feeds it.
+// Deterministic: no random numbers; and no density is evaluated unless a
+// sublayer is corrected (the masses are one pass over the particles near the
+// face).
 void BoundaryProjection::project_reservoir_quiet(std::size_t i,
                                                  std::vector<std::vector<std::size_t>>& sublayer_members,
                                                  ParticleSet& particles, double t_new, PatchLedger& call,
@@ -434,34 +441,61 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
   const std::size_t held = K;
   const int dim = domain_->dim();
   const bool odd = options_.reservoir_profile == ReservoirProfile::Odd && r.wall != nullptr;
-  const PlacementDensity density(particles, walls_);
-  const double r2 = density.radius() * density.radius();
-  auto target = [&](const Vec3& y) {
-    const double g = c.data(y, t_new);
-    if (!odd) return g;
-    return std::clamp(2.0 * g - density.at(r.wall->reflect(y, nullptr)), 0.0, 2.0 * std::max(g, 0.0));
-  };
 
-  // Each held sublayer's deficit on its probes (the first candidates: they
-  // are uniform in the sublayer).
+  // Each held sublayer's deficit from the blob masses of the particles, in
+  // the normal coordinate xi of the patch's wall (xi > 0 in the band): a blob
+  // of width s puts the mass of N(xi_q, s^2/2) into each depth interval (exact
+  // for a plane; on a wall of radius R off by O(s^2/R) in the mean depth).
+  // Band sublayer j is (a_j, b_j]; its mirror inside Omega is [-b_j, -a_j);
+  // the back wall at depth w folds each blob's tail back in (its image).
+  // Tangential spill is not lost: images at the side walls fold it back, and
+  // the normal coordinate integrates over the tangential ones.
+  const double w = options_.reservoir_thickness;
+  std::vector<double> band_mass(K, 0.0), mirror_mass(K, 0.0);
+  {
+    const std::vector<Vec3>& x = particles.positions();
+    const std::vector<double>& sw = particles.widths();
+    const std::vector<double>& m = particles.masses();
+    // A sphere (3-D ball): the exact mass of the blob in the shell between
+    // radii R + lo and R + hi (gaussian_in_ball, closed form); the 1-D normal
+    // model put the sphere's steady state 2% low (its mean depth is off by
+    // about s^2 / (2 R)). The disc's exact form is a quadrature, 5x the cost
+    // of a whole step here, so a circle keeps the 1-D model.
+    const std::optional<DomainShape> shape = domain_->shape();
+    const bool ball = shape && shape->kind == DomainShape::Kind::Ball && dim == 3;
+    for (std::size_t p = 0; p < particles.size(); ++p) {
+      const double xi = r.wall->distance(x[p]);
+      const double reach = kTailWidths * sw[p];
+      if (!(xi > -w - reach && xi < w + reach)) continue;
+      const double r0 = ball ? (x[p] - shape->center).norm() : 0.0;
+      auto in_depths = [&](double lo, double hi) {
+        if (!ball) return gaussian_in_interval(xi, sw[p], lo, hi);
+        const double R = shape->radius;
+        const double outer = gaussian_in_ball(3, r0, sw[p], R + hi);
+        const double inner = R + lo > 0.0 ? gaussian_in_ball(3, r0, sw[p], R + lo) : 0.0;
+        return std::max(outer - inner, 0.0);
+      };
+      for (std::size_t j = 0; j < K; ++j) {
+        const double a = w * static_cast<double>(j) / static_cast<double>(K);
+        const double b = w * static_cast<double>(j + 1) / static_cast<double>(K);
+        band_mass[j] += m[p] * (in_depths(a, b) + in_depths(2.0 * w - b, 2.0 * w - a));
+        mirror_mass[j] += m[p] * in_depths(-b, -a);
+      }
+    }
+  }
   std::vector<long> change(K, 0);
   long total_insert = 0;
   for (std::size_t j = 0; j < held; ++j) {
-    const std::vector<Vec3>& cand = r.candidates[j];
-    // One probe per two particles of the largest target (4 per particle and
-    // 2 per particle changed the errors by less than run-to-run noise at a
-    // fourth of the cost; docs/boundaries.md), at least kMinCandidates.
-    const std::size_t probes = std::max<std::size_t>(
-        std::min(cand.size(), kMinCandidates),
-        cand.size() / (kProbeFraction * static_cast<std::size_t>(options_.reservoir_candidates)));
-    double sum_t = 0.0, sum_d = 0.0;
-    for (std::size_t k = 0; k < probes; ++k) {
-      const double t = target(cand[k]);
-      sum_t += t;
-      sum_d += t - density.at(cand[k]);
+    // The target's mean over the sublayer: g (uniform), or 2 g minus the
+    // interior's mean density at the mirror depths (odd; the mirror shell of
+    // a sphere is smaller than the band's, so its mean density is taken).
+    const double g_mass = reservoir_target_count(i, static_cast<int>(j), t_new) * particle_mass_;  // g |sublayer j|
+    double target_mass = g_mass;
+    if (odd) {
+      const double interior = r.mirror_volume[j] > 0.0 ? mirror_mass[j] * r.volume[j] / r.mirror_volume[j] : 0.0;
+      target_mass = std::clamp(2.0 * g_mass - interior, 0.0, 2.0 * std::max(g_mass, 0.0));
     }
-    const double scale = r.volume[j] / (static_cast<double>(probes) * particle_mass_);
-    const double x_j = sum_t * scale, d_j = sum_d * scale;
+    const double x_j = target_mass / particle_mass_, d_j = (target_mass - band_mass[j]) / particle_mass_;
     require(std::isfinite(d_j), "reservoir deficit (patch " + std::to_string(c.patch) + ")", d_j,
             "must be finite (check g)");
     require_particle_room(std::max(x_j, 0.0), particles.size(), max_particles_, patch_label(i, t_new));
@@ -469,7 +503,18 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
     change[j] = std::max(std::lround(d_j), -static_cast<long>(sublayer_members[j].size()));
     total_insert += std::max(change[j], 0L);
   }
+  if (std::all_of(change.begin(), change.end(), [](long v) { return v == 0; })) return;
   require_particle_room(static_cast<double>(total_insert), particles.size(), max_particles_, patch_label(i, t_new));
+
+  // Where particles go and leave: the blob density (images included) against
+  // the pointwise target T(c) = clamp(2 g - rho(R c), 0, 2 g) (odd) or g.
+  const PlacementDensity density(particles, walls_);
+  const double r2 = density.radius() * density.radius();
+  auto target = [&](const Vec3& y) {
+    const double g = c.data(y, t_new);
+    if (!odd) return g;
+    return std::clamp(2.0 * g - density.at(r.wall->reflect(y, nullptr)), 0.0, 2.0 * std::max(g, 0.0));
+  };
 
   // Removals: the particles of the sublayer with the largest excess rho - T first.
   for (std::size_t j = 0; j < held; ++j) {
@@ -485,11 +530,11 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
       const std::size_t p = in_j[k];
       const Vec3 xp = particles.positions()[p];
       const double mp = particles.masses()[p];
-      const PlacementDensity::Kernel w(particles.widths()[p], mp, dim);
+      const PlacementDensity::Kernel kernel(particles.widths()[p], mp, dim);
       excess[k] = -std::numeric_limits<double>::infinity();
       for (std::size_t l = 0; l < in_j.size(); ++l)
         if (std::isfinite(excess[l]) && (particles.positions()[in_j[l]] - xp).squaredNorm() < r2)
-          excess[l] -= w(particles.positions()[in_j[l]], xp);
+          excess[l] -= kernel(particles.positions()[in_j[l]], xp);
       to_remove.push_back(p);
       ++led.removed;
       ++call.removed;
@@ -523,7 +568,7 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
   std::vector<char> used(cand.size(), 0);
   particles.reserve(particles.size() + static_cast<std::size_t>(total_insert));
   const double mp = particle_mass_;
-  const PlacementDensity::Kernel w(width_s_, mp, dim);
+  const PlacementDensity::Kernel kernel(width_s_, mp, dim);
   for (std::size_t j = 0; j < held; ++j) {
     for (long n = 0; n < change[j]; ++n) {
       std::size_t k = cand.size();
@@ -548,7 +593,7 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
       particles.add(y, width_s_, mp, t_new);
       grid.for_each_candidate(y, [&](std::uint32_t l) {
         if (!used[l] && (cand[l] - y).squaredNorm() < r2)
-          deficit[l] -= w(cand[l], y);
+          deficit[l] -= kernel(cand[l], y);
       });
       ++led.inserted;
       ++call.inserted;

@@ -113,16 +113,18 @@ class BoundaryProjection {
   //     the reservoir domain (sd_ext > 0) are removed and counted as absorbed
   //     (particles outside Omega at no-flux or Neumann patches are left alone).
   //  2. Quiet control (the default): the deficit of sublayer j is measured
-  //     on the blob density, D_j = |sublayer j| / m_p x mean over fixed probe
-  //     points c of (T(c) - rho(c)), T = g (uniform) or 2 g - rho(R c)
-  //     (odd, R c the mirror point inside Omega, clamped to [0, 2 g]), rho
-  //     with the image blobs of set_mirror_walls(). Sublayer j is left alone
-  //     while |D_j| <= reservoir_tolerance; otherwise round(D_j) particles
-  //     leave where rho - T is largest or are put, one at a time, at the
-  //     candidate point where T - rho is largest (reservoir_candidates fixed
-  //     points per target particle). The sublayer next to the back wall
-  //     (K >= 2) is held only within 5% of its target. No random numbers
-  //     are drawn, and a settled state is left unchanged.
+  //     on blob masses, D_j = (T_j - M_j) / m_p, M_j the blob mass in the
+  //     sublayer (tails beyond the back wall folded back) and T_j its target
+  //     g |sublayer j| (uniform) or 2 g |sublayer j| - M'_j |sublayer j| /
+  //     |mirror j| (odd, M'_j the blob mass in the sublayer's mirror image
+  //     inside Omega; clamped to [0, 2 g |sublayer j|]). Sublayer j is left
+  //     alone while |D_j| <= reservoir_tolerance; otherwise round(D_j)
+  //     particles leave where the blob density (images across
+  //     set_mirror_walls() included) exceeds its pointwise target most, or are
+  //     put, one at a time, at the candidate point where it falls short most
+  //     (reservoir_candidates fixed points per target particle). The sublayer
+  //     next to the back wall (K >= 2) is held only within 5% of its target.
+  //     No random numbers are drawn, and a settled state is left unchanged.
   //  2'. Exact control: each sublayer is set to exactly T_j particles: surplus ones are deleted
   //     uniformly at random, missing ones inserted uniformly in the sublayer.
   //     T_j = floor(X_j + r_j), X_j = (integral of g over sublayer j) / m_p,
