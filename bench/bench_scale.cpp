@@ -1,7 +1,10 @@
 // Whole implicit steps at scale: a Simulation in the unit cube (3D), n
 // particles (a jittered cubic lattice of round(n^(1/3))^3 sites) at density 1, beta = 2/dr^2, the x- face Dirichlet at
-// rho = 1 (boundary-layer projection each step), the other faces no-flux
-// walls (image blobs), Ceres L-BFGS with the library's default tolerances.
+// rho = 1, the other faces no-flux walls (image blobs), Ceres L-BFGS with the
+// library's default tolerances. The Dirichlet face has the default treatment
+// of otfp run (--treatment converging: the odd reservoir band one cut-off
+// deep, quiet control, half a spacing per sublayer) or the papers' layer of
+// Sec. 4.2 (--treatment papers, what this benchmark ran before issue 24).
 // One process per size, so that its peak memory is that of this size only:
 //   otfp_bench_scale --n 1000000 --dt-factor 1 --threads 2 --steps 2
 // prints one line of key = value pairs per run: time per step (median of the
@@ -21,6 +24,7 @@
 #include <vector>
 
 #include "otfp/geometry.hpp"
+#include "otfp/neighbor_list.hpp"
 #include "otfp/parameters.hpp"
 #include "otfp/simulation.hpp"
 
@@ -40,7 +44,8 @@ double status_bytes(const char* key) {
 }
 
 int usage(const char* why) {
-  std::fprintf(stderr, "otfp_bench_scale: %s\nusage: otfp_bench_scale --n N [--dt-factor F] [--threads T] [--steps K]\n",
+  std::fprintf(stderr, "otfp_bench_scale: %s\nusage: otfp_bench_scale --n N [--dt-factor F] [--threads T] [--steps K] "
+               "[--treatment converging|papers]\n",
                why);
   return 2;
 }
@@ -50,9 +55,15 @@ int usage(const char* why) {
 int main(int argc, char** argv) {
   long n = 0, threads = 1, steps = 2;
   double factor = 1.0;
+  std::string treatment = "converging";
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string key = argv[i];
     char* end = nullptr;
+    if (key == "--treatment") {
+      treatment = argv[i + 1];
+      if (treatment != "converging" && treatment != "papers") return usage("--treatment must be converging or papers");
+      continue;
+    }
     if (key == "--n") n = std::strtol(argv[i + 1], &end, 10);
     else if (key == "--threads") threads = std::strtol(argv[i + 1], &end, 10);
     else if (key == "--steps") steps = std::strtol(argv[i + 1], &end, 10);
@@ -79,6 +90,14 @@ int main(int argc, char** argv) {
   o.barrier_stiffness = pp.barrier_C;
   o.projection.layer_b = pp.layer_b;
   o.implicit.rho_ref = 1.0;
+  if (treatment == "converging") {
+    o.projection.dirichlet_mode = DirichletMode::Reservoir;
+    o.projection.reservoir_profile = ReservoirProfile::Odd;
+    o.projection.reservoir_control = ReservoirControl::Quiet;
+    o.projection.reservoir_thickness = cutoff_radius(pp.width_s, o.implicit.neighbor.kernel_tolerance);
+    o.projection.reservoir_sublayers =
+        std::max(1, static_cast<int>(std::lround(2.0 * o.projection.reservoir_thickness / pp.dr)));
+  }
   Simulation sim(box, {{box->patch_by_name("x-"), PatchKind::Dirichlet, 1.0}}, o);
   // A cubic lattice of k^3 ~ n sites jittered by 0.1 spacing: near the
   // settled arrangement of a long run (a uniform random fill needs many steps
@@ -112,10 +131,10 @@ int main(int argc, char** argv) {
   const double hwm = status_bytes("VmHWM");
   const Functional& f = sim.implicit_stepper()->functional();
   std::printf(
-      "n = %ld threads = %ld dt_factor = %g steps = %ld particles_now = %zu seconds_per_step = %.3f "
+      "n = %ld treatment = %s threads = %ld dt_factor = %g steps = %ld particles_now = %zu seconds_per_step = %.3f "
       "evaluations_per_step = %.0f list_builds_per_step = %.0f peak_bytes_per_particle = %.0f "
       "resident_bytes_per_particle = %.0f list_rows = %zu images = %zu entries_per_row = %.1f\n",
-      n, threads, factor, steps, sim.particles().size(), median(wall), median(evals), median(builds),
+      n, treatment.c_str(), threads, factor, steps, sim.particles().size(), median(wall), median(evals), median(builds),
       (hwm - rss0) / static_cast<double>(n), (status_bytes("VmRSS") - rss0) / static_cast<double>(n), f.list().size(), f.images().size(),
       static_cast<double>(f.list().num_entries()) / static_cast<double>(std::max<std::size_t>(1, f.list().size())));
   return 0;

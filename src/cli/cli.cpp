@@ -384,9 +384,18 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
                                       r.last.step, r.last.t)
                         : fmt::format("{} (before step 0: {} holds no rows)", r.error, out_dir),
                  kRunFailed);
-  if (!quiet)
-    err << fmt::format("otfp: {} steps to t = {}: n = {}, M/M_inf = {:.4f}, {:.1f} s -> {}\n", r.last.step, r.last.t,
-                       r.last.n_particles, r.last.mass_ratio, r.summary.value("wall_seconds", 0.0), escaped(out_dir));
+  if (!quiet) {
+    // M by centres (43) and M_rho (the blob mass in Omega, images included):
+    // in a settled state layers of particles move the first, not the second
+    // (docs/boundaries.md, "Counts of centres in a settled state").
+    std::string blob;
+    if (r.summary.contains("final") && r.summary["final"].contains("mass_blob_ratio") &&
+        r.summary["final"]["mass_blob_ratio"].is_number())
+      blob = fmt::format(", M_rho/M_inf = {:.4f}", r.summary["final"]["mass_blob_ratio"].get<double>());
+    err << fmt::format("otfp: {} steps to t = {}: n = {}, M/M_inf = {:.4f}{}, {:.1f} s -> {}\n", r.last.step, r.last.t,
+                       r.last.n_particles, r.last.mass_ratio, blob, r.summary.value("wall_seconds", 0.0),
+                       escaped(out_dir));
+  }
   return 0;
 }
 
