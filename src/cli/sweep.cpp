@@ -100,6 +100,10 @@ const std::vector<std::pair<std::string, std::string>>& summary_columns() {
       {"growth_ratio", "/reference/growth_ratio"},
       {"rate_ratio", "/reference/rate_ratio"},
       {"rate_ratio_time_discrete", "/reference/rate_ratio_time_discrete"},
+      {"mass_blob_ratio", "/final/mass_blob_ratio"},
+      {"blob_max_abs_error", "/reference/mass_blob/max_abs_error"},
+      {"blob_mean_abs_error", "/reference/mass_blob/mean_abs_error"},
+      {"blob_final_error", "/reference/mass_blob/final_error"},
   };
   return cols;
 }
