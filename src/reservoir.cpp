@@ -45,6 +45,8 @@ constexpr double kVolumeAgreementSigmas = 4.0;
 constexpr double kBackTolerance = 0.05;
 // Quiet control: blobs farther than this many widths from a depth interval put no mass in it.
 constexpr double kTailWidths = 7.0;
+// Quiet control: sublayers are held in groups whose targets add up to at least this many particles.
+constexpr double kMinGroupTarget = 8.0;
 // Quiet control: at least this many candidate points per sublayer.
 constexpr std::size_t kMinCandidates = 64;
 
@@ -431,18 +433,10 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
   const Reservoir& r = reservoirs_[i];
   const PatchCondition& c = conditions_[i];
   const auto K = static_cast<std::size_t>(r.sublayers);
-  // The back sublayer (K >= 2) is held only within kBackTolerance of its
-  // target: enough to fill it at the start and refill it when the band runs
-  // low, loose enough to leave the wall's own 1-2% alone.
-  auto tolerance = [&](std::size_t j, double x_j) {
-    return K >= 2 && j + 1 == K ? std::max(options_.reservoir_tolerance, kBackTolerance * std::abs(x_j))
-                                : options_.reservoir_tolerance;
-  };
-  const std::size_t held = K;
   const int dim = domain_->dim();
   const bool odd = options_.reservoir_profile == ReservoirProfile::Odd && r.wall != nullptr;
 
-  // Each held sublayer's deficit from the blob masses of the particles, in
+  // Each sublayer's deficit from the blob masses of the particles, in
   // the normal coordinate xi of the patch's wall (xi > 0 in the band): a blob
   // of width s puts the mass of N(xi_q, s^2/2) into each depth interval (exact
   // for a plane; on a wall of radius R off by O(s^2/R) in the mean depth).
@@ -483,9 +477,8 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
       }
     }
   }
-  std::vector<long> change(K, 0);
-  long total_insert = 0;
-  for (std::size_t j = 0; j < held; ++j) {
+  std::vector<double> x(K, 0.0), d(K, 0.0);
+  for (std::size_t j = 0; j < K; ++j) {
     // The target's mean over the sublayer: g (uniform), or 2 g minus the
     // interior's mean density at the mirror depths (odd; the mirror shell of
     // a sphere is smaller than the band's, so its mean density is taken).
@@ -495,13 +488,58 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
       const double interior = r.mirror_volume[j] > 0.0 ? mirror_mass[j] * r.volume[j] / r.mirror_volume[j] : 0.0;
       target_mass = std::clamp(2.0 * g_mass - interior, 0.0, 2.0 * std::max(g_mass, 0.0));
     }
-    const double x_j = target_mass / particle_mass_, d_j = (target_mass - band_mass[j]) / particle_mass_;
-    require(std::isfinite(d_j), "reservoir deficit (patch " + std::to_string(c.patch) + ")", d_j,
+    x[j] = target_mass / particle_mass_;
+    d[j] = (target_mass - band_mass[j]) / particle_mass_;
+    require(std::isfinite(d[j]), "reservoir deficit (patch " + std::to_string(c.patch) + ")", d[j],
             "must be finite (check g)");
-    require_particle_room(std::max(x_j, 0.0), particles.size(), max_particles_, patch_label(i, t_new));
-    if (std::abs(d_j) <= tolerance(j, x_j)) continue;
-    change[j] = std::max(std::lround(d_j), -static_cast<long>(sublayer_members[j].size()));
-    total_insert += std::max(change[j], 0L);
+    require_particle_room(std::max(x[j], 0.0), particles.size(), max_particles_, patch_label(i, t_new));
+  }
+  // Sublayers are held in groups of consecutive ones whose targets add up to
+  // at least kMinGroupTarget particles (each sublayer on its own wherever it
+  // is that large: the 3-D examples). A sublayer of less than a particle
+  // could never leave a tolerance of one particle (the 1-D box: 9 sublayers
+  // of 0.95 particles, never filled).
+  std::vector<std::size_t> group_of(K, 0);
+  std::size_t groups = 0;
+  {
+    double sum = 0.0;
+    for (std::size_t j = 0; j < K; ++j) {
+      group_of[j] = groups;
+      sum += std::max(x[j], 0.0);
+      if (sum >= kMinGroupTarget && j + 1 < K) {
+        ++groups;
+        sum = 0.0;
+      }
+    }
+    ++groups;
+    // A last group below the minimum joins the one before it.
+    if (groups > 1 && sum < kMinGroupTarget) {
+      for (std::size_t j = 0; j < K; ++j)
+        if (group_of[j] == groups - 1) group_of[j] = groups - 2;
+      --groups;
+    }
+  }
+  std::vector<double> x_group(groups, 0.0), d_group(groups, 0.0);
+  std::vector<std::size_t> members(groups, 0), layers(groups, 0);
+  for (std::size_t j = 0; j < K; ++j) {
+    x_group[group_of[j]] += x[j];
+    d_group[group_of[j]] += d[j];
+    members[group_of[j]] += sublayer_members[j].size();
+    ++layers[group_of[j]];
+  }
+  std::vector<long> change(groups, 0);
+  long total_insert = 0;
+  for (std::size_t q = 0; q < groups; ++q) {
+    // The sublayer next to the back wall, held on its own, only within
+    // kBackTolerance of its target: enough to fill it at the start and
+    // refill it when the band runs low, loose enough to leave the wall's own
+    // 1-2% alone.
+    const bool back = K >= 2 && layers[q] == 1 && group_of[K - 1] == q;
+    const double tolerance =
+        back ? std::max(options_.reservoir_tolerance, kBackTolerance * std::abs(x_group[q])) : options_.reservoir_tolerance;
+    if (std::abs(d_group[q]) <= tolerance) continue;
+    change[q] = std::max(std::lround(d_group[q]), -static_cast<long>(members[q]));
+    total_insert += std::max(change[q], 0L);
   }
   if (std::all_of(change.begin(), change.end(), [](long v) { return v == 0; })) return;
   require_particle_room(static_cast<double>(total_insert), particles.size(), max_particles_, patch_label(i, t_new));
@@ -516,25 +554,27 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
     return std::clamp(2.0 * g - density.at(r.wall->reflect(y, nullptr)), 0.0, 2.0 * std::max(g, 0.0));
   };
 
-  // Removals: the particles of the sublayer with the largest excess rho - T first.
-  for (std::size_t j = 0; j < held; ++j) {
-    if (change[j] >= 0) continue;
-    const std::vector<std::size_t>& in_j = sublayer_members[j];
-    std::vector<double> excess(in_j.size());
-    for (std::size_t k = 0; k < in_j.size(); ++k) {
-      const Vec3& y = particles.positions()[in_j[k]];
+  // Removals: the particles of the group with the largest excess rho - T first.
+  for (std::size_t q = 0; q < groups; ++q) {
+    if (change[q] >= 0) continue;
+    std::vector<std::size_t> in_q;
+    for (std::size_t j = 0; j < K; ++j)
+      if (group_of[j] == q) in_q.insert(in_q.end(), sublayer_members[j].begin(), sublayer_members[j].end());
+    std::vector<double> excess(in_q.size());
+    for (std::size_t k = 0; k < in_q.size(); ++k) {
+      const Vec3& y = particles.positions()[in_q[k]];
       excess[k] = density.at(y) - target(y);
     }
-    for (long n = 0; n < -change[j]; ++n) {
+    for (long n = 0; n < -change[q]; ++n) {
       const auto k = static_cast<std::size_t>(std::max_element(excess.begin(), excess.end()) - excess.begin());
-      const std::size_t p = in_j[k];
+      const std::size_t p = in_q[k];
       const Vec3 xp = particles.positions()[p];
       const double mp = particles.masses()[p];
       const PlacementDensity::Kernel kernel(particles.widths()[p], mp, dim);
       excess[k] = -std::numeric_limits<double>::infinity();
-      for (std::size_t l = 0; l < in_j.size(); ++l)
-        if (std::isfinite(excess[l]) && (particles.positions()[in_j[l]] - xp).squaredNorm() < r2)
-          excess[l] -= kernel(particles.positions()[in_j[l]], xp);
+      for (std::size_t l = 0; l < in_q.size(); ++l)
+        if (std::isfinite(excess[l]) && (particles.positions()[in_q[l]] - xp).squaredNorm() < r2)
+          excess[l] -= kernel(particles.positions()[in_q[l]], xp);
       to_remove.push_back(p);
       ++led.removed;
       ++call.removed;
@@ -544,50 +584,49 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
   }
   if (total_insert == 0) return;
 
-  // Insertions: the candidates of the sublayers being filled ranked by their
+  // Insertions: the candidates of the groups being filled ranked by their
   // deficit T - rho, lowered as particles are placed (a particle in one
-  // sublayer also lowers the deficit at the candidates of its neighbours).
+  // group also lowers the deficit at the candidates of its neighbours).
   // A candidate is used at most once per call.
   std::vector<Vec3> cand;
-  std::vector<std::size_t> layer_of;
-  for (std::size_t j = 0; j < held; ++j) {
-    if (change[j] <= 0) continue;
+  std::vector<std::size_t> group_of_cand;
+  for (std::size_t j = 0; j < K; ++j) {
+    if (change[group_of[j]] <= 0) continue;
     cand.insert(cand.end(), r.candidates[j].begin(), r.candidates[j].end());
-    layer_of.insert(layer_of.end(), r.candidates[j].size(), j);
+    group_of_cand.insert(group_of_cand.end(), r.candidates[j].size(), group_of[j]);
   }
   std::vector<double> deficit(cand.size());
   for (std::size_t k = 0; k < cand.size(); ++k) deficit[k] = target(cand[k]) - density.at(cand[k]);
   CellGrid grid;
   grid.build(cand, density.radius(), Periodicity::none(dim), 1);
-  // Per sublayer, a max-heap of (deficit, candidate) with lazy updates:
+  // Per group, a max-heap of (deficit, candidate) with lazy updates:
   // deficits only fall as particles are placed, so a popped entry whose
   // deficit has fallen goes back in with its new value.
   using Entry = std::pair<double, std::size_t>;
-  std::vector<std::priority_queue<Entry>> heap(K);
-  for (std::size_t k = 0; k < cand.size(); ++k) heap[layer_of[k]].emplace(deficit[k], k);
+  std::vector<std::priority_queue<Entry>> heap(groups);
+  for (std::size_t k = 0; k < cand.size(); ++k) heap[group_of_cand[k]].emplace(deficit[k], k);
   std::vector<char> used(cand.size(), 0);
   particles.reserve(particles.size() + static_cast<std::size_t>(total_insert));
   const double mp = particle_mass_;
   const PlacementDensity::Kernel kernel(width_s_, mp, dim);
-  for (std::size_t j = 0; j < held; ++j) {
-    for (long n = 0; n < change[j]; ++n) {
+  for (std::size_t q = 0; q < groups; ++q) {
+    for (long n = 0; n < change[q]; ++n) {
       std::size_t k = cand.size();
-      while (!heap[j].empty()) {
-        const Entry e = heap[j].top();
-        heap[j].pop();
+      while (!heap[q].empty()) {
+        const Entry e = heap[q].top();
+        heap[q].pop();
         if (used[e.second]) continue;
         if (deficit[e.second] < e.first) {
-          heap[j].emplace(deficit[e.second], e.second);
+          heap[q].emplace(deficit[e.second], e.second);
           continue;
         }
         k = e.second;
         break;
       }
       if (k == cand.size())
-        throw std::runtime_error("reservoir of patch '" + domain_->patch_name(c.patch) + "': sublayer " +
-                                 std::to_string(j) + " needs more particles than its " +
-                                 std::to_string(r.candidates[j].size()) +
-                                 " candidate points (raise reservoir_candidates)");
+        throw std::runtime_error("reservoir of patch '" + domain_->patch_name(c.patch) +
+                                 "': a group of sublayers needs more particles than its candidate points "
+                                 "(raise reservoir_candidates)");
       used[k] = 1;
       const Vec3 y = cand[k];
       particles.add(y, width_s_, mp, t_new);
