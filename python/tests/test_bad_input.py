@@ -174,3 +174,25 @@ def test_an_observer_returning_something_else_than_none_or_a_bool_is_told_what_t
     # numpy's bool is a bool.
     assert not sim.run_until(0.003, 0.001, lambda s, step: np.bool_(False))
     assert sim.step_count == 2
+
+
+def test_special_files_are_refused_at_once(tmp_path):
+    """read_particles and load_checkpoint on /dev/zero or a FIFO raise a
+    ValueError naming the file, without reading (they used to read until
+    MemoryError, or hang on a FIFO with no writer)."""
+    import os
+    import otfp
+    fifo = tmp_path / "fifo.csv"
+    os.mkfifo(fifo)
+    link = tmp_path / "zero.vtp"
+    os.symlink("/dev/zero", link)
+    for path in (str(link), str(fifo)):
+        with pytest.raises(ValueError, match="regular file"):
+            otfp.read_particles(path, 3)
+    ball = otfp.make_ball(3, [0, 0, 0], 1.0)
+    data = [otfp.BoundaryData(patch=0, kind="dirichlet", value=0.2)]
+    opts = otfp.converging_options(ball, data, n_inf=100, length_L=1.0, particle_mass=0.01)
+    sim = otfp.Simulation(ball, data, opts)
+    for path in ("/dev/zero", str(fifo), str(link)):
+        with pytest.raises(ValueError, match="regular file"):
+            sim.load_checkpoint(path)
