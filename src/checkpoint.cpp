@@ -2,6 +2,8 @@
 // in simulation.cpp).
 #include "otfp/simulation.hpp"
 
+#include "file_read.hpp"
+
 #include <fcntl.h>
 #include <sys/stat.h>
 
@@ -236,37 +238,12 @@ std::string first_difference(const std::string& theirs, const std::string& mine)
 // half the machine's memory, the magic of this format and the checksum.
 std::string read_verified(const std::filesystem::path& path) {
   const std::string name = "checkpoint " + path.string() + ": ";
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK);
-  if (fd < 0) throw InvalidArgument(name + "cannot read (" + std::strerror(errno) + ")");
-  struct stat st {};
-  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
-    ::close(fd);
-    const char* kind = S_ISDIR(st.st_mode)                          ? "a directory"
-                       : S_ISFIFO(st.st_mode)                         ? "a FIFO"
-                       : S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode) ? "a device"
-                                                                      : "not a file";
-    throw InvalidArgument(name + "not a regular file (" + kind + ")");
+  std::string bytes;
+  try {
+    bytes = detail::read_regular_file(path);
+  } catch (const detail::FileReadError& e) {
+    throw InvalidArgument(name + e.what());
   }
-  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
-  const double memory = pages > 0 && page > 0 ? static_cast<double>(pages) * static_cast<double>(page) : 4e9;
-  if (static_cast<double>(st.st_size) > 0.5 * memory) {
-    ::close(fd);
-    throw InvalidArgument(name + std::to_string(st.st_size) + " bytes, more than half this machine's memory");
-  }
-  std::string bytes(static_cast<std::size_t>(st.st_size), '\0');
-  std::size_t got = 0;
-  while (got < bytes.size()) {
-    const ssize_t n = ::read(fd, bytes.data() + got, bytes.size() - got);
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) {
-      const int e = errno;
-      ::close(fd);
-      throw InvalidArgument(name + (n == 0 ? std::string("shorter than its size (changed while read)")
-                                           : "cannot read (" + std::string(std::strerror(e)) + ")"));
-    }
-    got += static_cast<std::size_t>(n);
-  }
-  ::close(fd);
   if (bytes.size() >= sizeof(kMagicV1) && std::memcmp(bytes.data(), kMagicV1, sizeof(kMagicV1)) == 0)
     throw InvalidArgument(name + "written by an older otfp (format 1, without a setup fingerprint): not loadable");
   if (bytes.size() < sizeof(kMagic) + 8 || std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0)

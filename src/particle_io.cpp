@@ -1,5 +1,7 @@
 #include "otfp/particle_io.hpp"
 
+#include "file_read.hpp"
+
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -340,38 +342,12 @@ ParticleSet read_particles(const std::filesystem::path& path, int dim) {
   if (std::filesystem::is_directory(path, ec)) fail("particle file", file, "is a directory, not a file");
   const std::string ext = path.extension().string();
   if (ext != ".csv" && ext != ".vtp") fail("particle file", file, "must end in .csv or .vtp");
-  // A regular file only: a FIFO would block the read, a device such as
-  // /dev/zero never ends. At most half the machine's memory.
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK);
-  if (fd < 0) fail("particle file", file, fmt::format("cannot be read ({})", std::strerror(errno)));
-  struct stat st {};
-  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
-    ::close(fd);
-    const char* kind = S_ISFIFO(st.st_mode) ? "a FIFO"
-                       : S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode) ? "a device"
-                       : S_ISSOCK(st.st_mode) ? "a socket"
-                                              : "not a file";
-    fail("particle file", file, fmt::format("is not a regular file ({})", kind));
+  std::string bytes;
+  try {
+    bytes = detail::read_regular_file(path);
+  } catch (const detail::FileReadError& e) {
+    fail("particle file", file, e.what());
   }
-  const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGE_SIZE);
-  const double memory = pages > 0 && page > 0 ? static_cast<double>(pages) * static_cast<double>(page) : 4e9;
-  if (static_cast<double>(st.st_size) > 0.5 * memory) {
-    ::close(fd);
-    fail("particle file", file, fmt::format("has {} bytes, more than half this machine's memory", st.st_size));
-  }
-  std::string bytes(static_cast<std::size_t>(st.st_size), '\0');
-  std::size_t got = 0;
-  while (got < bytes.size()) {
-    const ssize_t r = ::read(fd, bytes.data() + got, bytes.size() - got);
-    if (r < 0 && errno == EINTR) continue;
-    if (r <= 0) {
-      const std::string why = r == 0 ? "it shrank while read" : std::strerror(errno);
-      ::close(fd);
-      fail("particle file", file, fmt::format("cannot be read ({})", why));
-    }
-    got += static_cast<std::size_t>(r);
-  }
-  ::close(fd);
   if (trimmed(bytes).find_first_not_of("\n\r\t ") == std::string_view::npos) fail("particle file", file, "is empty");
   return ext == ".csv" ? read_csv(bytes, file, dim) : read_vtp(bytes, file, dim);
 }

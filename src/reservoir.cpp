@@ -155,18 +155,27 @@ void BoundaryProjection::build_reservoir(std::size_t i) {
       if (!(std::abs(v[j] - mc[j]) <= kVolumeAgreementSigmas * se[j] + 1e-9 * std::max(v[j], mc[j]))) return false;
     return true;
   };
-  std::vector<double> shell(K), slab(K);
+  // Sublayer volumes as differences of the layer cell's volume at depths
+  // j w / K, on the given side of the patch; `closed` is whether the domain
+  // gives them in closed form (asked twice with different sample counts: a
+  // Monte Carlo implementation answers differently).
+  auto shell_volumes = [&](LayerPart part, bool& closed) {
+    std::vector<double> v(K);
+    double below = 0.0;
+    closed = true;
+    for (std::size_t j = 0; j < K; ++j) {
+      const double v1 = domain_->layer_cell_volume(c.patch, depth(j + 1), part, 1000);
+      const double v2 = domain_->layer_cell_volume(c.patch, depth(j + 1), part, 1001);
+      closed = closed && v1 == v2;
+      v[j] = v1 - below;
+      below = v1;
+    }
+    return v;
+  };
   bool shell_closed_form = true;
-  double below = 0.0;
-  for (std::size_t j = 0; j < K; ++j) {
-    const double t = depth(j + 1);
-    const double v1 = domain_->layer_cell_volume(c.patch, t, LayerPart::Exterior, 1000);
-    const double v2 = domain_->layer_cell_volume(c.patch, t, LayerPart::Exterior, 1001);
-    shell_closed_form = shell_closed_form && v1 == v2;
-    shell[j] = v1 - below;
-    below = v1;
-    slab[j] = domain_->patch_area(c.patch) * (t - depth(j));
-  }
+  const std::vector<double> shell = shell_volumes(LayerPart::Exterior, shell_closed_form);
+  std::vector<double> slab(K);
+  for (std::size_t j = 0; j < K; ++j) slab[j] = domain_->patch_area(c.patch) * (depth(j + 1) - depth(j));
   if (shell_closed_form && agrees(shell)) {
     r.volume = shell;
     r.volume_rule = "exterior_shell";
@@ -217,17 +226,8 @@ void BoundaryProjection::build_reservoir(std::size_t i) {
           return false;
       return true;
     };
-    std::vector<double> inner_shell(K);
-    double inner_below = 0.0;
     bool inner_closed_form = true;
-    for (std::size_t jj = 0; jj < K; ++jj) {
-      const double t = depth(jj + 1);
-      const double v1 = domain_->layer_cell_volume(c.patch, t, LayerPart::Interior, 1000);
-      const double v2 = domain_->layer_cell_volume(c.patch, t, LayerPart::Interior, 1001);
-      inner_closed_form = inner_closed_form && v1 == v2;
-      inner_shell[jj] = v1 - inner_below;
-      inner_below = v1;
-    }
+    const std::vector<double> inner_shell = shell_volumes(LayerPart::Interior, inner_closed_form);
     if (r.volume_rule != "monte_carlo" && agrees_m(r.volume))
       r.mirror_volume = r.volume;
     else if (inner_closed_form && agrees_m(inner_shell))

@@ -209,6 +209,10 @@ std::string to_toml(const Config& config);
 // it ends and how it writes; every other key is the checkpoint's.
 const std::vector<std::string>& resume_keys();
 
+// Levenshtein distance between two words (the "did you mean" hints of keys,
+// subcommands and options).
+std::size_t edit_distance(const std::string& a, const std::string& b);
+
 // The configuration as a checkpoint records it: every key but resume_keys(),
 // "section.key" (arrays of tables "boundary[0].value") -> the value as JSON
 // text, taken from the configuration as config.toml holds it (to_toml parsed
