@@ -69,6 +69,22 @@ Predictor predictor_from_string(const std::string& s) {
   throw InvalidArgument("predictor = '" + s + "': must be one of none, extrapolate, damped");
 }
 
+std::string to_string(ErrorMeasure e) { return e == ErrorMeasure::Density ? "density" : "displacement"; }
+
+ErrorMeasure error_measure_from_string(const std::string& s) {
+  if (s == "density") return ErrorMeasure::Density;
+  if (s == "displacement") return ErrorMeasure::Displacement;
+  throw InvalidArgument("error_measure = '" + s + "': must be one of density, displacement");
+}
+
+std::string to_string(StoppingNorm n) { return n == StoppingNorm::Energy ? "energy" : "max"; }
+
+StoppingNorm stopping_norm_from_string(const std::string& s) {
+  if (s == "energy") return StoppingNorm::Energy;
+  if (s == "max") return StoppingNorm::Max;
+  throw InvalidArgument("stopping_norm = '" + s + "': must be one of energy, max");
+}
+
 std::string to_string(WidthMode m) { return m == WidthMode::Fixed ? "fixed" : "per_particle"; }
 
 WidthMode width_mode_from_string(const std::string& s) {

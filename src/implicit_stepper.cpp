@@ -1,10 +1,13 @@
 #include <chrono>
+#include <cstdio>
 #include <cmath>
 #include <algorithm>
 #include <limits>
 #include <string>
 
 #include "otfp/implicit_stepper.hpp"
+
+#include "otfp/density.hpp"
 
 namespace otfp {
 
@@ -21,6 +24,8 @@ void ImplicitOptions::validate() const {
           "must be finite and >= 0");
   require(std::isfinite(error_smoothing) && error_smoothing >= 0.0 && error_smoothing <= 3.0, "error_smoothing",
           error_smoothing, "must be in [0, 3] widths (the neighbour list reaches about 4.3 widths)");
+  require(std::isfinite(max_norm_factor) && max_norm_factor >= 1.0, "max_norm_factor", max_norm_factor,
+          "must be finite and >= 1");
   require(std::isfinite(width_skin) && width_skin >= 0.0, "width_skin", width_skin, "must be finite and >= 0");
   require(max_width_factor == 0.0 || (std::isfinite(max_width_factor) && max_width_factor > 1.0), "max_width_factor",
           max_width_factor, "must be 0 (off) or finite and > 1");
@@ -76,6 +81,7 @@ class StepObjective final : public Objective {
       : f_(f), ext_(ext), s_ref_(s_anchor), m_(m), dim_(f.dim()), widths_(widths), n_(x_anchor.size()),
         s_max_(widths ? s_max : 0.0) {
     const double c_w = f.transport().c_w();
+    c_w_ = c_w;
     scale_x_.resize(n_);
     scale_s_.resize(widths ? n_ : 0);
     disp_x_.resize(n_);
@@ -147,22 +153,43 @@ class StepObjective final : public Objective {
     return true;
   }
 
-  // max |dt/m dF/dx| and max |dt/(c_w m) dF/ds|: how far one gradient step would move a particle.
-  // With the bound the width part is |dt/(c_w m) dF/ds| phi'(v) b'/b: the same
-  // below the fold, zero where the bound holds a width (dF/ds < 0 there).
+  // The gradient step d_p = dt/m dF/dx (and dt/(c_w m) dF/ds): how far one
+  // gradient step would move particle p. With the bound the width part is
+  // |dt/(c_w m) dF/ds| phi'(v) b'/b: the same below the fold, zero where the
+  // bound holds a width (dF/ds < 0 there).
+  //   Max:    max_p |d_p| (componentwise);
+  //   Energy: max(RMS, max / max_norm_factor), RMS = sqrt(sum_p m_p (|d_p|^2 +
+  //           c_w d_s,p^2) / M), the norm of the transport term in which the
+  //           step's error is measured: with the Hessian in the scaled
+  //           unknowns >= I, RMS bounds the M-weighted RMS distance to the
+  //           solution of the step (docs/stepper.md).
   double stopping_measure(const double* z, const double* gradient) const override {
-    double worst = 0.0;
+    double worst = 0.0, sum = 0.0, mass = 0.0;
     for (std::size_t p = 0; p < n_; ++p) {
-      for (int k = 0; k < dim_; ++k)
-        worst = std::max(worst, std::abs(gradient[p * dim_ + k] * scale_x_[p] * disp_x_[p]));
+      double d2 = 0.0;
+      for (int k = 0; k < dim_; ++k) {
+        const double d = gradient[p * dim_ + k] * scale_x_[p] * disp_x_[p];
+        worst = std::max(worst, std::abs(d));
+        d2 += d * d;
+      }
       if (widths_) {
         const double s = width_of(p, z[n_ * dim_ + p]);
         const double scale = s_max_ > 0.0 ? scale_b_[p] : scale_s_[p];
-        worst = std::max(worst, std::abs(gradient[n_ * dim_ + p] * scale / s * disp_s_[p]));
+        const double d = gradient[n_ * dim_ + p] * scale / s * disp_s_[p];
+        worst = std::max(worst, std::abs(d));
+        d2 += c_w_ * d * d;
       }
+      sum += m_[p] * d2;
+      mass += m_[p];
     }
-    return worst;
+    if (!(max_norm_factor_ > 0.0)) return worst;
+    const double rms = mass > 0.0 ? std::sqrt(sum / mass) : 0.0;
+    // A NaN (an overflowing scale) must never read as converged.
+    if (!std::isfinite(rms)) return std::numeric_limits<double>::infinity();
+    return std::max(rms, worst / max_norm_factor_);
   }
+  // Energy norm: the factor by which the max-norm may exceed the tolerance (0: Max norm).
+  void set_max_norm_factor(double f) { max_norm_factor_ = f; }
 
   const FunctionalParts& parts() const { return parts_; }
 
@@ -185,6 +212,8 @@ class StepObjective final : public Objective {
   bool widths_;
   std::size_t n_;
   double s_max_;  // upper bound on the widths (0: none)
+  double c_w_ = 1.0;
+  double max_norm_factor_ = 0.0;
   std::vector<double> scale_x_, scale_s_, disp_x_, disp_s_, scale_b_, u_ref_;
   std::vector<Vec3> x_;
   std::vector<double> s_;
@@ -362,8 +391,20 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
 
   const double s_max = options_.max_width_factor > 0.0 ? options_.max_width_factor * options_.nominal_width : 0.0;
   StepObjective objective(functional_, external_, x, s, m, dt, widths, weights, s_max);
+  const bool energy_norm = options_.stopping_norm == StoppingNorm::Energy;
+  if (energy_norm) objective.set_max_norm_factor(options_.max_norm_factor);
   std::vector<double> z(objective.num_variables());
   objective.pack(x, s, z.data());
+  // sqrt(m/dt) overflows for a dt of a few 1e-308: no step can be taken in
+  // unknowns that are not finite (the run fails with this message).
+  for (double v : z)
+    if (!std::isfinite(v)) {
+      char buf[64];
+      std::snprintf(buf, sizeof(buf), "%.6g", dt);
+      summary.message = std::string("dt = ") + buf + " is too small: the scaled unknowns sqrt(m/dt) x overflow";
+      summary.reason = TerminationReason::NonFinite;
+      return false;
+    }
 
   double s_min = s.empty() ? 1.0 : s[0];
   for (double v : s) s_min = std::min(s_min, v);
@@ -395,7 +436,12 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   const double f_scale =
       std::abs(before.transport) + std::abs(before.entropy) + std::abs(before.barrier) + options_.kappa * mass;
   const double eps_f = 64.0 * std::numeric_limits<double>::epsilon() * f_scale;
-  const double floor_measure = std::sqrt(eps_f * dt / m_min);
+  // In the energy norm the whole gradient stalls at |g_z|^2 ~ eps_F, an RMS
+  // of sqrt(eps_F dt / M); a single particle at its floor shows as that floor
+  // over max_norm_factor.
+  const double floor_measure = energy_norm ? std::max(std::sqrt(eps_f * dt / std::max(mass, m_min)),
+                                                      std::sqrt(eps_f * dt / m_min) / options_.max_norm_factor)
+                                           : std::sqrt(eps_f * dt / m_min);
   // Along the stiffest direction (the Hessian in the scaled unknowns is
   // I + (dt/m) D^2 E, largest eigenvalue about 1 + 2 kappa beta dt,
   // docs/method_notes.md) a line search stalls at sqrt(lambda_max) times that
@@ -542,6 +588,7 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
     es[p] = widths ? factor * (s_new[p] - pred_s) : 0.0;
     has[p] = 1;
   }
+  const double density_error = factor > 0.0 ? density_error_estimate(x_new, s_new, m, ex, es, has, factor) : NAN;
   double sum_raw = 0.0, sum_smooth = 0.0, sum_m = 0.0;
   const NeighborList& list = functional_.list();
   const bool list_ok = list.built() && list.size() >= n;
@@ -580,8 +627,12 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
     sum_m += m[p];
   }
   if (sum_m > 0.0) {
-    const double err = std::sqrt(sum_smooth / sum_m), raw = std::sqrt(sum_raw / sum_m);
-    if (!(summary.error_estimate >= err)) summary.error_estimate = err;  // NaN-aware max over substeps
+    const double smooth = std::sqrt(sum_smooth / sum_m), raw = std::sqrt(sum_raw / sum_m);
+    const double err = options_.error_measure == ErrorMeasure::Density ? density_error : smooth;
+    // NaN-aware maxima over substeps.
+    if (!(summary.error_estimate >= err)) summary.error_estimate = err;
+    if (!(summary.displacement_error_estimate >= smooth)) summary.displacement_error_estimate = smooth;
+    if (!(summary.density_error_estimate >= density_error)) summary.density_error_estimate = density_error;
     if (!(summary.particle_error_estimate >= raw)) summary.particle_error_estimate = raw;
     summary.error_order = bdf2 ? 2 : 1;
   }
@@ -600,6 +651,67 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   x = std::move(x_new);
   s = std::move(s_new);
   return true;
+}
+
+// The local error of the blob density (ErrorMeasure::Density): the density
+// of the step's result minus that of the explicit extrapolation (the same
+// Milne factor as the displacement estimate), both smoothed by a Gaussian of
+// error_smoothing widths (a blob of width s convolved with it is a blob of
+// width s sqrt(1 + c^2)), at the new particle positions; mass-weighted RMS
+// relative to the mass-weighted mean density. A permutation of particles, or
+// their relaxation at the particle scale, leaves the smoothed density (and
+// so the estimate) unchanged: the density ripple of a lattice of spacing
+// dr = sqrt(2) s is damped by exp(-pi^2 (1 + c^2)) by the smoothing, below
+// 1e-20 at c = 2. Particles without the history the estimate needs enter both
+// densities at their new place. NaN when no particle has an estimate.
+double ImplicitStepper::density_error_estimate(const std::vector<Vec3>& x_new, const std::vector<double>& s_new,
+                                               const std::vector<double>& m, const std::vector<Vec3>& ex,
+                                               const std::vector<double>& es, const std::vector<char>& has,
+                                               double factor) const {
+  const std::size_t n = x_new.size();
+  bool any = false;
+  for (char h : has) any = any || h;
+  if (!any || !(factor > 0.0)) return NAN;
+  const double widen = std::sqrt(1.0 + options_.error_smoothing * options_.error_smoothing);
+  std::vector<Vec3> x_pred(n);
+  std::vector<double> w_new(n), w_pred(n);
+  for (std::size_t p = 0; p < n; ++p) {
+    // ex = factor (x_new - pred): the prediction is x_new - ex / factor.
+    x_pred[p] = has[p] ? Vec3(x_new[p] - ex[p] / factor) : x_new[p];
+    w_new[p] = widen * s_new[p];
+    const double sp = has[p] && !es.empty() ? s_new[p] - es[p] / factor : s_new[p];
+    w_pred[p] = widen * (sp > 0.0 ? sp : s_new[p]);
+  }
+  const Periodicity& per = functional_.periodicity();
+  // The estimate needs a relative precision of about 1e-6 of the density;
+  // the kernel's own tolerance where that is tighter.
+  const double tol = std::max(options_.neighbor.kernel_tolerance, kErrorKernelTolerance);
+  // Probes: every (2^d / 2)-th particle (the particles are in spatial order
+  // after sort_particles), about one per 1.6 spacings in 3-D, where the
+  // smoothed density varies over 2.2 widths = 1.6 spacings: the same RMS at
+  // a quarter of the sweeps' cost.
+  const std::size_t stride = dim_ == 3 ? 4 : dim_ == 2 ? 2 : 1;
+  std::vector<Vec3> probes;
+  std::vector<double> probe_m;
+  probes.reserve(n / stride + 1);
+  probe_m.reserve(n / stride + 1);
+  for (std::size_t p = 0; p < n; p += stride) {
+    probes.push_back(x_new[p]);
+    probe_m.push_back(m[p]);
+  }
+  std::vector<double> rho_new, rho_pred;
+  blob_density(dim_, x_new, w_new, m, probes, per, tol, rho_new, nullptr);
+  blob_density(dim_, x_pred, w_pred, m, probes, per, tol, rho_pred, nullptr);
+  double sum = 0.0, mean = 0.0, mass = 0.0;
+  for (std::size_t j = 0; j < probes.size(); ++j) {
+    const double e = factor * (rho_new[j] - rho_pred[j]);
+    sum += probe_m[j] * e * e;
+    mean += probe_m[j] * rho_new[j];
+    mass += probe_m[j];
+  }
+  if (!(mass > 0.0) || !(mean > 0.0)) return NAN;
+  mean /= mass;
+  return std::sqrt(sum / mass) / mean;
 }
 
 StepSummary ImplicitStepper::step(ParticleSet& particles, double dt, double max_error) {
@@ -640,6 +752,7 @@ StepSummary ImplicitStepper::step(ParticleSet& particles, double dt, double max_
     FunctionalParts first_before;
     double first_f = 0.0, first_start = 0.0;
     summary.error_estimate = summary.particle_error_estimate = std::numeric_limits<double>::quiet_NaN();
+    summary.displacement_error_estimate = summary.density_error_estimate = std::numeric_limits<double>::quiet_NaN();
     summary.error_order = 0;
     for (int k = 0; k < substeps && ok; ++k) {
       ok = solve(x, s, m, hist, dt1, dt2, h, summary);

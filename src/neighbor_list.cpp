@@ -3,6 +3,8 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <atomic>
+#include <limits>
 #include <cstdlib>
 #include <cstring>
 #include <new>
@@ -233,6 +235,9 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
   // storage from build to build: no per-build buffers of the list's size).
   std::vector<std::uint32_t> extra_count(n, 0), by_wide_start(n + 1, 0), by_wide;
   std::vector<std::uint16_t> own_thread(n, 0);  // where pass 1 left the rows of the particles searching alone
+  // Pass 1 stops early once the rows add up to more than the 32-bit offsets hold.
+  std::atomic<std::uint64_t> counted{0};
+  std::atomic<bool> overflow{false};
   std::vector<std::size_t> own_pos(n, 0);
   std::uint32_t* dst = nullptr;
   bool mismatch = false;
@@ -245,6 +250,8 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
       const std::uint32_t p = items_p[k];
       if (pass == 1) {
         counts[p] = count;
+        if (counted.fetch_add(count, std::memory_order_relaxed) + count > std::numeric_limits<std::uint32_t>::max())
+          overflow.store(true, std::memory_order_relaxed);
       } else if (count != counts[p]) {
         mismatch = true;
       } else if (count > 0) {  // an empty list has no storage: memcpy must not see its null pointer
@@ -254,7 +261,7 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
 #pragma omp for schedule(dynamic, 16)
     for (std::size_t c = 0; c < ncell; ++c) {
       const std::size_t c0 = cell_start[c], c1 = cell_start[c + 1];
-      if (c0 == c1) continue;
+      if (c0 == c1 || (pass == 1 && overflow.load(std::memory_order_relaxed))) continue;
       // The group: reach <= kReach, sharing the runs of the largest such reach.
       int group_reach = 0;
       for (std::size_t k = c0; k < c1; ++k) {
@@ -405,6 +412,18 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
       for (const auto& [row, entry] : sc.extras) by_wide[fill[entry]++] = row;
       std::vector<std::pair<std::uint32_t, std::uint32_t>>().swap(sc.extras);
     }
+  }
+  {
+    // The offsets are 32-bit: a list of more entries (blobs that each
+    // overlap tens of thousands of others: masses far below what their
+    // widths need) is refused before anything is written.
+    std::uint64_t entries = 0;
+    for (std::size_t p = 0; p < n; ++p) entries += static_cast<std::uint64_t>(counts[p]) + extra_count[p];
+    if (overflow.load() || entries > std::numeric_limits<std::uint32_t>::max())
+      throw std::runtime_error("the neighbour list would hold more than " + std::to_string(entries) + " entries for " +
+                               std::to_string(n) + " blobs (at most 2^32 - 1): each blob overlaps about " +
+                               std::to_string(entries / std::max<std::size_t>(n, 1)) +
+                               " others; the particles are far denser than their widths");
   }
   offsets_.assign(n + 1, 0);
   for (std::size_t p = 0; p < n; ++p) offsets_[p + 1] = offsets_[p] + counts[p] + extra_count[p];

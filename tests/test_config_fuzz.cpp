@@ -416,6 +416,7 @@ TEST(ConfigFuzz, AcceptedMutantsRunCleanly) {
     const std::string& type = run->config().domain.type;
     if (d.mirrored_walls > 0 && (type == "ball" || type == "cylinder" || type == "square_pipe_obstacle")) continue;
     ++ran;
+    if (std::getenv("OTFP_FUZZ_TRACE")) std::cerr << "case " << ran << "\n" << describe(c) << std::endl;
     RunOptions options;  // empty out_dir: in memory, nothing written
     options.keep_series = true;
     RunResult r;

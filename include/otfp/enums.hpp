@@ -75,6 +75,22 @@ enum class Predictor {
 std::string to_string(Predictor p);
 Predictor predictor_from_string(const std::string& s);  // "none" | "extrapolate" | "damped"
 
+// What the local time-error estimate of an implicit step measures (docs/stepper.md).
+enum class ErrorMeasure {
+  Density,      // the blob density smoothed over a few widths, relative to its mean (what users measure)
+  Displacement  // the particles' displacement error in widths, smoothed over a neighbourhood (the former rule)
+};
+std::string to_string(ErrorMeasure e);
+ErrorMeasure error_measure_from_string(const std::string& s);  // "density" | "displacement"
+
+// The norm of the implicit solve's stopping rule (docs/stepper.md).
+enum class StoppingNorm {
+  Energy,  // mass-weighted RMS of the gradient step (the energy norm of the residual), max-norm as a safety bound
+  Max      // the largest gradient step of any particle (the former rule)
+};
+std::string to_string(StoppingNorm n);
+StoppingNorm stopping_norm_from_string(const std::string& s);  // "energy" | "max"
+
 // ---- Explicit stepper (explicit_stepper.hpp)
 
 enum class ExplicitScheme {

@@ -34,6 +34,9 @@ struct ImplicitOptions {
   TimeScheme time_scheme = TimeScheme::Euler;        // implicit Euler or variational BDF2
   Predictor predictor = Predictor::None;             // start of each solve
   double error_smoothing = 2.0;                      // error estimate: smoothing length in widths s (0: per particle)
+  ErrorMeasure error_measure = ErrorMeasure::Displacement;  // what StepSummary::error_estimate measures (docs/stepper.md)
+  StoppingNorm stopping_norm = StoppingNorm::Max;    // norm of the stopping rule's residual (docs/stepper.md)
+  double max_norm_factor = 10.0;                     // Energy: the largest particle's residual may be this x the RMS tolerance (>= 1)
   double width_skin = 0.0;                           // PerParticle: list built for widths s (1 + width_skin) (>= 0)
   double max_width_factor = 0.0;                     // PerParticle: s_p <= this x nominal_width (0: off; else > 1)
   double nominal_width = 0.0;                        // the run's nominal width s0 the bound refers to (> 0 if bounded)
@@ -102,6 +105,10 @@ class ImplicitStepper {
   bool solve(std::vector<Vec3>& x, std::vector<double>& s, const std::vector<double>& m, std::vector<History>& hist,
              double& dt1, double& dt2, double dt, StepSummary& summary);
   Vec3 admissible_start(const Vec3& from, const Vec3& to) const;
+  double density_error_estimate(const std::vector<Vec3>& x_new, const std::vector<double>& s_new,
+                                const std::vector<double>& m, const std::vector<Vec3>& ex,
+                                const std::vector<double>& es, const std::vector<char>& has, double factor) const;
+  static constexpr double kErrorKernelTolerance = 1e-6;
   // Factor g of the predicted displacement g d1 for a step w = dt / dt_{k-1} times the last.
   static double predictor_factor(Predictor predictor, const History& h, double omega);
   int dim_;

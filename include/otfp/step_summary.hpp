@@ -40,8 +40,12 @@ struct StepSummary {
   // the step's local error (order 1: Euler, 2: BDF2) averaged over the
   // particle's neighbourhood (ImplicitOptions::error_smoothing); NaN when no particle has the history it
   // needs (first steps, docs/stepper.md). Largest over substeps.
+  // error_estimate is the one ImplicitOptions::error_measure selects: the
+  // density's (relative) or the displacement's (in widths); both are reported.
   double error_estimate = std::numeric_limits<double>::quiet_NaN();
-  double particle_error_estimate = std::numeric_limits<double>::quiet_NaN();  // the same without the average
+  double density_error_estimate = std::numeric_limits<double>::quiet_NaN();       // smoothed density, relative to its mean
+  double displacement_error_estimate = std::numeric_limits<double>::quiet_NaN();  // smoothed displacement, in widths
+  double particle_error_estimate = std::numeric_limits<double>::quiet_NaN();      // displacement without the average
   int error_order = 0;                      // order of the scheme the estimate belongs to
   bool error_rejected = false;              // rejected because error_estimate > the caller's limit
   long bdf2_particles = 0;                  // particles stepped with the BDF2 form (last substep)

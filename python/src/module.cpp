@@ -506,6 +506,11 @@ PYBIND11_MODULE(_otfp, m) {
   bind_enum<Predictor>(m, "Predictor",
                        {{"None_", Predictor::None}, {"Extrapolate", Predictor::Extrapolate}, {"Damped", Predictor::Damped}},
                        predictor_from_string);
+  bind_enum<ErrorMeasure>(m, "ErrorMeasure",
+                          {{"Displacement", ErrorMeasure::Displacement}, {"Density", ErrorMeasure::Density}},
+                          error_measure_from_string);
+  bind_enum<StoppingNorm>(m, "StoppingNorm", {{"Max", StoppingNorm::Max}, {"Energy", StoppingNorm::Energy}},
+                          stopping_norm_from_string);
   bind_enum<ExplicitScheme>(m, "ExplicitScheme",
                             {{"EulerForce27", ExplicitScheme::EulerForce27}, {"Rk4Force27", ExplicitScheme::Rk4Force27},
                              {"EulerExactGradient", ExplicitScheme::EulerExactGradient}},
@@ -742,6 +747,9 @@ PYBIND11_MODULE(_otfp, m) {
       .field("time_scheme", &ImplicitOptions::time_scheme, "euler | bdf2")
       .field("predictor", &ImplicitOptions::predictor, "none | extrapolate | damped")
       .field("error_smoothing", &ImplicitOptions::error_smoothing, "error estimate smoothing (widths)")
+      .field("error_measure", &ImplicitOptions::error_measure, "displacement | density: what error_estimate measures")
+      .field("stopping_norm", &ImplicitOptions::stopping_norm, "max | energy: norm of the solve's stopping rule")
+      .field("max_norm_factor", &ImplicitOptions::max_norm_factor, "energy norm: largest residual / RMS tolerance (>= 1)")
       .field("width_skin", &ImplicitOptions::width_skin, "per_particle: list built for widths s (1 + this)")
       .field("max_width_factor", &ImplicitOptions::max_width_factor, "per_particle: s <= this x nominal_width (0: off)")
       .field("nominal_width", &ImplicitOptions::nominal_width, "the width s0 the bound refers to")
@@ -855,6 +863,8 @@ PYBIND11_MODULE(_otfp, m) {
       .def_readonly("inserted", &StepSummary::inserted)
       .def_readonly("removed", &StepSummary::removed)
       .def_readonly("error_estimate", &StepSummary::error_estimate)
+      .def_readonly("density_error_estimate", &StepSummary::density_error_estimate)
+      .def_readonly("displacement_error_estimate", &StepSummary::displacement_error_estimate)
       .def_readonly("error_order", &StepSummary::error_order)
       .def_readonly("error_rejected", &StepSummary::error_rejected)
       .def("__repr__", [](const StepSummary& s) {

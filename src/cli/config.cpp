@@ -426,6 +426,11 @@ const std::vector<Field>& fields() {
         key("solver.time_scheme", &SolverSection::time_scheme).one_of(names({TimeScheme::Euler, TimeScheme::Bdf2})),
         key("solver.predictor", &SolverSection::predictor)
             .one_of(names({Predictor::None, Predictor::Extrapolate, Predictor::Damped})),
+        key("solver.error_measure", &SolverSection::error_measure)
+            .one_of(names({ErrorMeasure::Density, ErrorMeasure::Displacement})),
+        key("solver.stopping_norm", &SolverSection::stopping_norm)
+            .one_of(names({StoppingNorm::Energy, StoppingNorm::Max})),
+        key("solver.max_norm_factor", &SolverSection::max_norm_factor).with(at_least(1)),
         key("solver.error_smoothing", &SolverSection::error_smoothing)
             .with(interval('[', 0, 3, ']', "must be in [0, 3] widths (the neighbour list reaches about 4.3 widths)")),
         key("solver.displacement_tolerance", &SolverSection::displacement_tolerance).with(greater(0)),

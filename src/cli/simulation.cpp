@@ -647,6 +647,9 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     io.time_scheme = time_scheme_from_string(s.time_scheme);
     io.predictor = predictor_from_string(s.predictor);
     io.error_smoothing = s.error_smoothing;
+    io.error_measure = error_measure_from_string(s.error_measure);
+    io.stopping_norm = stopping_norm_from_string(s.stopping_norm);
+    io.max_norm_factor = s.max_norm_factor;
     io.max_width_factor = s.max_width_factor;
     io.nominal_width = d.width_s;  // the bound is max_width_factor x the run's s0
     io.kappa = c.physics.kappa;

@@ -124,6 +124,9 @@ struct SolverSection {
   std::string time_scheme = to_string(ImplicitOptions{}.time_scheme);        // euler | bdf2
   std::string predictor = to_string(ImplicitOptions{}.predictor);            // none | extrapolate | damped
   double error_smoothing = ImplicitOptions{}.error_smoothing;  // error estimate: smoothing length in widths
+  std::string error_measure = to_string(ImplicitOptions{}.error_measure);    // density | displacement
+  std::string stopping_norm = to_string(ImplicitOptions{}.stopping_norm);    // energy | max
+  double max_norm_factor = ImplicitOptions{}.max_norm_factor;  // energy norm: largest residual / RMS tolerance
   double displacement_tolerance = ImplicitOptions{}.displacement_tolerance;
   double relative_tolerance = ImplicitOptions{}.relative_tolerance;
   std::int64_t max_iterations = ImplicitOptions{}.minimizer.max_iterations;
