@@ -72,6 +72,8 @@ void run_steps(benchmark::State& state, Stepper& stepper, Cloud& c, double dt) {
 void set_measured_tolerances(ImplicitOptions& o) {
   o.displacement_tolerance = 1e-2;
   o.relative_tolerance = 1e-1;
+  // OTFP_BENCH_STOPPING_NORM=energy|max: the stopping rule's norm (docs/stepper.md).
+  if (const char* norm = std::getenv("OTFP_BENCH_STOPPING_NORM")) o.stopping_norm = stopping_norm_from_string(norm);
 }
 
 // Args: backend (0 Ceres, 1 NLopt), widths (0 fixed, 1 per particle), dt factor.

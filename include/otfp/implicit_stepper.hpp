@@ -35,7 +35,7 @@ struct ImplicitOptions {
   Predictor predictor = Predictor::None;             // start of each solve
   double error_smoothing = 2.0;                      // error estimate: smoothing length in widths s (0: per particle)
   ErrorMeasure error_measure = ErrorMeasure::Displacement;  // what StepSummary::error_estimate measures (docs/stepper.md)
-  StoppingNorm stopping_norm = StoppingNorm::Max;    // norm of the stopping rule's residual (docs/stepper.md)
+  StoppingNorm stopping_norm = StoppingNorm::Energy; // norm of the stopping rule's residual (docs/stepper.md)
   double max_norm_factor = 10.0;                     // Energy: the largest particle's residual may be this x the RMS tolerance (>= 1)
   double width_skin = 0.0;                           // PerParticle: list built for widths s (1 + width_skin) (>= 0)
   double max_width_factor = 0.0;                     // PerParticle: s_p <= this x nominal_width (0: off; else > 1)
