@@ -251,3 +251,43 @@ TEST(QuietReservoir, SettledStateIsAFixedPoint) {
     }
   }
 }
+
+// Issue 25 item 3: once the density stops changing, adaptive steps grow
+// geometrically. The settled disc and square, stepped with advance_adaptive
+// from 1x the explicit limit: the error estimate of a step that moves nothing
+// is zero, so each step grows dt by the controller's max_growth (2) until
+// dt_max (here 4000x, the step it was settled with: settled with 1000x
+// steps, the first step beyond 2000x still relaxes the arrangement, 33-63
+// evaluations, once), every step is accepted at the first try, inserts and
+// removes nothing, and costs at most 5 evaluations.
+TEST(QuietReservoir, SettledStateTakesGeometricallyGrowingAdaptiveSteps) {
+  for (Held s : {disc(), square()}) {
+    s.options.time_control.dt_max = 4000.0 * s.pp.dt_explicit;
+    auto sim = s.make();
+    sim->start(ParticleSet(2), 0.0);
+    const double h = s.pp.dt_explicit;
+    for (int k = 0; k < 40; ++k) sim->advance(h);
+    for (int k = 0; k < 30; ++k) {
+      const SimulationStep st = sim->advance(4000.0 * h);
+      if (st.inserted == 0 && st.removed == 0 && st.diffusion.evaluations <= 3) break;
+    }
+    // Two steps at 1x to give the estimate its history.
+    sim->advance(h);
+    sim->advance(h);
+    sim->set_next_dt(h);
+    const double growth = TimeStepControlOptions{}.max_growth, dt_max = 4000.0 * h;
+    double expected = h;
+    for (int k = 0; k < 14; ++k) {
+      const SimulationStep st = sim->advance_adaptive(1e300);
+      ASSERT_TRUE(st.diffusion.accepted) << st.diffusion.message;
+      EXPECT_EQ(st.error_rejections, 0) << "step " << k;
+      EXPECT_NEAR(st.t_end - st.t_start, expected, 1e-9 * expected) << "step " << k;
+      EXPECT_EQ(st.inserted + st.removed, 0) << "step " << k;
+      EXPECT_LE(st.diffusion.evaluations, 5) << "step " << k;
+      expected = std::min(expected * growth, dt_max);
+      if (k == 13) {
+        EXPECT_EQ(sim->next_dt(), dt_max);
+      }
+    }
+  }
+}
