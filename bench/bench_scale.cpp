@@ -45,7 +45,7 @@ double status_bytes(const char* key) {
 
 int usage(const char* why) {
   std::fprintf(stderr, "otfp_bench_scale: %s\nusage: otfp_bench_scale --n N [--dt-factor F] [--threads T] [--steps K] "
-               "[--treatment converging|papers]\n",
+               "[--treatment converging|papers] [--stopping-norm energy|max]\n",
                why);
   return 2;
 }
@@ -55,10 +55,15 @@ int usage(const char* why) {
 int main(int argc, char** argv) {
   long n = 0, threads = 1, steps = 2;
   double factor = 1.0;
-  std::string treatment = "converging";
+  std::string treatment = "converging", norm = "energy";
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string key = argv[i];
     char* end = nullptr;
+    if (key == "--stopping-norm") {
+      norm = argv[i + 1];
+      if (norm != "energy" && norm != "max") return usage("--stopping-norm must be energy or max");
+      continue;
+    }
     if (key == "--treatment") {
       treatment = argv[i + 1];
       if (treatment != "converging" && treatment != "papers") return usage("--treatment must be converging or papers");
@@ -90,6 +95,7 @@ int main(int argc, char** argv) {
   o.barrier_stiffness = pp.barrier_C;
   o.projection.layer_b = pp.layer_b;
   o.implicit.rho_ref = 1.0;
+  o.implicit.stopping_norm = stopping_norm_from_string(norm);
   if (treatment == "converging") {
     o.projection.dirichlet_mode = DirichletMode::Reservoir;
     o.projection.reservoir_profile = ReservoirProfile::Odd;

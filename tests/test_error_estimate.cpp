@@ -16,6 +16,7 @@
 #include "otfp/geometry.hpp"
 #include "otfp/implicit_stepper.hpp"
 #include "otfp/initial_fill.hpp"
+#include "smoothed_density.hpp"
 
 using namespace otfp;
 
@@ -60,28 +61,6 @@ ImplicitOptions options(TimeScheme scheme) {
   return o;
 }
 
-// Mass-weighted RMS of the smoothed density difference at `probes`, relative
-// to the mass-weighted mean of a's smoothed density (the estimate's norm).
-double density_difference(const ParticleSet& a, const ParticleSet& b, double smoothing, const Periodicity& per) {
-  const double widen = std::sqrt(1.0 + smoothing * smoothing);
-  auto widened = [&](const ParticleSet& p) {
-    std::vector<double> w = p.widths();
-    for (double& v : w) v *= widen;
-    return w;
-  };
-  std::vector<double> ra, rb;
-  blob_density(kDim, a.positions(), widened(a), a.masses(), a.positions(), per, 1e-12, ra, nullptr);
-  blob_density(kDim, b.positions(), widened(b), b.masses(), a.positions(), per, 1e-12, rb, nullptr);
-  double sum = 0.0, mean = 0.0, mass = 0.0;
-  for (std::size_t i = 0; i < ra.size(); ++i) {
-    const double m = a.masses()[i];
-    sum += m * (ra[i] - rb[i]) * (ra[i] - rb[i]);
-    mean += m * ra[i];
-    mass += m;
-  }
-  return std::sqrt(sum / mass) / (mean / mass);
-}
-
 struct Measured {
   double estimate = 0.0, truth = 0.0, displacement_estimate = 0.0;
 };
@@ -112,7 +91,7 @@ Measured measure(bool random, TimeScheme scheme, double dt, int history) {
     const StepSummary f = fine.step(start, dt / kSub);
     EXPECT_TRUE(f.accepted) << f.message;
   }
-  r.truth = density_difference(ps, start, options(scheme).error_smoothing, per);
+  r.truth = test::smoothed_density_difference(ps, start, options(scheme).error_smoothing, per);
   if (std::getenv("OTFP_TEST_VERBOSE"))
     std::printf("%s %s dt = %g dt_e: estimate %.4g, true %.4g (ratio %.3f), displacement estimate %.4g\n",
                 random ? "random" : "cosine", scheme == TimeScheme::Euler ? "euler" : "bdf2", dt / kDtExplicit,

@@ -225,6 +225,18 @@ TEST(QuietReservoir, CorrectsOnlyBeyondItsToleranceAndFillsTheHole) {
   EXPECT_EQ(static_cast<long>(ps.size() + taken.size()), bp.ledger()[0].inserted - bp.ledger()[0].removed);
 }
 
+namespace {
+// Fills from empty with 40 steps of h, then steps of factor x h until a step
+// inserts and removes nothing and costs at most 3 evaluations (30 at most).
+void settle(Simulation& sim, double h, double factor) {
+  for (int k = 0; k < 40; ++k) sim.advance(h);
+  for (int k = 0; k < 30; ++k) {
+    const SimulationStep st = sim.advance(factor * h);
+    if (st.inserted == 0 && st.removed == 0 && st.diffusion.evaluations <= 3) break;
+  }
+}
+}  // namespace
+
 // A settled state (the disc and the square at g, relaxed with steps of 1000x
 // the explicit limit until a step moves nothing) is a fixed point: steps of
 // 1x, 10x, 100x and 1000x insert and remove nothing, move no particle by
@@ -234,11 +246,7 @@ TEST(QuietReservoir, SettledStateIsAFixedPoint) {
     auto sim = s.make();
     sim->start(ParticleSet(2), 0.0);
     const double h = s.pp.dt_explicit;
-    for (int k = 0; k < 40; ++k) sim->advance(h);
-    for (int k = 0; k < 30; ++k) {
-      const SimulationStep st = sim->advance(1000.0 * h);
-      if (st.inserted == 0 && st.removed == 0 && st.diffusion.evaluations <= 3) break;
-    }
+    settle(*sim, h, 1000.0);
     const double tolerance = s.options.implicit.displacement_tolerance * s.pp.width_s;
     for (const double factor : {1.0, 10.0, 100.0, 1000.0}) {
       const ParticleSet before = sim->particles();
@@ -266,11 +274,7 @@ TEST(QuietReservoir, SettledStateTakesGeometricallyGrowingAdaptiveSteps) {
     auto sim = s.make();
     sim->start(ParticleSet(2), 0.0);
     const double h = s.pp.dt_explicit;
-    for (int k = 0; k < 40; ++k) sim->advance(h);
-    for (int k = 0; k < 30; ++k) {
-      const SimulationStep st = sim->advance(4000.0 * h);
-      if (st.inserted == 0 && st.removed == 0 && st.diffusion.evaluations <= 3) break;
-    }
+    settle(*sim, h, 4000.0);
     // Two steps at 1x to give the estimate its history.
     sim->advance(h);
     sim->advance(h);

@@ -17,6 +17,7 @@
 #include "otfp/geometry.hpp"
 #include "otfp/implicit_stepper.hpp"
 #include "otfp/initial_fill.hpp"
+#include "smoothed_density.hpp"
 
 using namespace otfp;
 
@@ -42,26 +43,6 @@ ParticleSet cosine_mode() {
   f.wavenumber = 2.0 * M_PI;
   Rng rng(7);
   return fill_particles(*box, f, rng);
-}
-
-double density_difference(const ParticleSet& a, const ParticleSet& b, double smoothing, const Periodicity& per) {
-  const double widen = std::sqrt(1.0 + smoothing * smoothing);
-  auto widened = [&](const ParticleSet& p) {
-    std::vector<double> w = p.widths();
-    for (double& v : w) v *= widen;
-    return w;
-  };
-  std::vector<double> ra, rb;
-  blob_density(kDim, a.positions(), widened(a), a.masses(), a.positions(), per, 1e-12, ra, nullptr);
-  blob_density(kDim, b.positions(), widened(b), b.masses(), a.positions(), per, 1e-12, rb, nullptr);
-  double sum = 0.0, mean = 0.0, mass = 0.0;
-  for (std::size_t i = 0; i < ra.size(); ++i) {
-    const double m = a.masses()[i];
-    sum += m * (ra[i] - rb[i]) * (ra[i] - rb[i]);
-    mean += m * ra[i];
-    mass += m;
-  }
-  return std::sqrt(sum / mass) / (mean / mass);
 }
 
 struct Solve {
@@ -106,10 +87,10 @@ TEST(StoppingRule, SolveErrorIsASmallFractionOfTheTimeErrorAtLargeSteps) {
       ImplicitStepper st(kDim, o, Barrier{}, per);
       for (int k = 0; k < 64; ++k) ASSERT_TRUE(st.step(fine.result, dt / 64).accepted);
     }
-    const double time_error = density_difference(exact.result, fine.result, smoothing, per);
+    const double time_error = test::smoothed_density_difference(exact.result, fine.result, smoothing, per);
     const Solve energy = step(dt, StoppingNorm::Energy, 0.0), max = step(dt, StoppingNorm::Max, 0.0);
-    const double energy_error = density_difference(energy.result, exact.result, smoothing, per);
-    const double max_error = density_difference(max.result, exact.result, smoothing, per);
+    const double energy_error = test::smoothed_density_difference(energy.result, exact.result, smoothing, per);
+    const double max_error = test::smoothed_density_difference(max.result, exact.result, smoothing, per);
     if (std::getenv("OTFP_TEST_VERBOSE"))
       std::printf("%gx: time error %.4g; energy norm: solve error %.4g, %d evaluations; max norm: %.4g, %d\n", factor,
                   time_error, energy_error, energy.evaluations, max_error, max.evaluations);
