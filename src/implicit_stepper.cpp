@@ -588,7 +588,10 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
     es[p] = widths ? factor * (s_new[p] - pred_s) : 0.0;
     has[p] = 1;
   }
-  const double density_error = factor > 0.0 ? density_error_estimate(x_new, s_new, m, ex, es, has, factor) : NAN;
+  // Two blob-density sweeps: only when the estimate is the one asked for.
+  const double density_error = factor > 0.0 && options_.error_measure == ErrorMeasure::Density
+                                   ? density_error_estimate(x_new, s_new, m, ex, es, has, factor)
+                                   : NAN;
   double sum_raw = 0.0, sum_smooth = 0.0, sum_m = 0.0;
   const NeighborList& list = functional_.list();
   const bool list_ok = list.built() && list.size() >= n;
