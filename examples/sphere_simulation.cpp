@@ -1,36 +1,35 @@
-// The sphere of [2025] Sec. 5.1 from C++ through otfp::Simulation: a ball of
-// radius 1, empty at t = 0, held at rho = g on its surface; prints t, M/M_inf
-// (43) and Crank's uptake. Usage: ./sphere_simulation [n_inf] [t_end]
-#include <cmath>
+// The sphere of [2025] Sec. 5.1 from C++ through library calls only: a ball of
+// radius 1, empty at t = 0, held at rho = g on its surface, with the set-up of
+// `otfp run examples/sphere_dirichlet.toml` (the converging treatment,
+// run_setup.hpp) and its time grid t_k = k dt. Prints per step t, M inside
+// Omega (43) (series.csv's mass_inside, the same doubles), M/M_inf and Crank's
+// uptake. Usage: ./sphere_simulation [n_inf] [t_end]
+#include <cstdint>
 #include <cstdio>
 #include <string>
 
 #include "otfp/analytic.hpp"
-#include "otfp/parameters.hpp"
+#include "otfp/run_setup.hpp"
 #include "otfp/simulation.hpp"
 
 int main(int argc, char** argv) {
   using namespace otfp;
-  const std::size_t n_inf = argc > 1 ? std::stoul(argv[1]) : 400;
-  const double t_end = argc > 2 ? std::stod(argv[2]) : 0.5, g = 1.0;
+  const double g = 0.238732;  // rho_inf = 3 M_inf / (4 pi R^3) with M_inf = 1, as the configuration gives it
   const DomainPtr ball = make_ball(3, Vec3::Zero(), 1.0);
-  const PaperParameters pp = paper_parameters(ball->volume(), n_inf, 3, 1.0, 1.0);  // (36)-(40), kappa = 1
-  SimulationOptions o;
-  o.particle_mass = g * ball->volume() / static_cast<double>(n_inf);  // M_inf / n_inf
-  o.width_s = pp.width_s;
-  o.barrier_stiffness = pp.barrier_C;
-  o.projection.layer_b = pp.layer_b;
-  // The converging treatment of `otfp run` (docs/boundaries.md): a reservoir band of
-  // one cut-off radius, half a spacing per sublayer.
-  o.projection.dirichlet_mode = DirichletMode::Reservoir;
-  o.projection.reservoir_thickness = cutoff_radius(pp.width_s, o.implicit.neighbor.kernel_tolerance);
-  o.projection.reservoir_sublayers = static_cast<int>(std::lround(2.0 * o.projection.reservoir_thickness / pp.dr));
-  o.projection.reservoir_profile = ReservoirProfile::Odd;
-  Simulation sim(ball, {{0, PatchKind::Dirichlet, g}}, o);
+  const std::vector<ConstantBoundaryData> boundary = {{0, PatchKind::Dirichlet, g}};
+  RunSetupOptions o;  // kappa = 1, beta dr^2 = 2, the converging preset
+  o.n_inf = argc > 1 ? std::stoll(argv[1]) : 400;
+  o.t_end = argc > 2 ? std::stod(argv[2]) : 1.0;
+  o.M_inf = 1.0;      // diagnostics.M_inf of the configuration: m_p = M_inf / n_inf
+  o.length_L = 1.0;   // L = R
+  const RunSetup setup = setup_run(*ball, boundary, o);  // (36)-(40), the band, the options
+  Simulation sim(ball, boundary, setup.options);
   sim.start(ParticleSet(3));
-  sim.run_until(t_end, pp.dt_explicit, [&](const Simulation& s, const SimulationStep& step) {
-    const double ratio = s.measure(Vec3::Zero()).mass_inside / (g * ball->volume());
-    std::printf("t = %.4f  M/M_inf = %.4f  Crank %.4f  (%d evaluations)\n", step.t_end, ratio,
-                analytic::crank_sphere_uptake(step.t_end), step.diffusion.evaluations);
-  });
+  const RunParameters& p = setup.parameters;
+  for (std::int64_t k = 1; k <= p.n_steps; ++k) {
+    const SimulationStep step = sim.advance_to(k == p.n_steps ? o.t_end : static_cast<double>(k) * p.dt);
+    const double mass = sim.measure(Vec3::Zero()).mass_inside;
+    std::printf("t = %.17g  M = %.17g  M/M_inf = %.4f  Crank %.4f  (%d evaluations)\n", step.t_end, mass,
+                mass / p.M_inf, analytic::crank_sphere_uptake(step.t_end), step.diffusion.evaluations);
+  }
 }

@@ -199,6 +199,14 @@ NoFluxTreatment no_flux_treatment_from_string(const std::string& s) {
   throw InvalidArgument("no_flux = \"" + s + "\": must be \"barrier\" or \"images\"");
 }
 
+std::string to_string(TreatmentPreset p) { return p == TreatmentPreset::Converging ? "converging" : "papers"; }
+
+TreatmentPreset treatment_preset_from_string(const std::string& s) {
+  if (s == "converging") return TreatmentPreset::Converging;
+  if (s == "papers") return TreatmentPreset::Papers;
+  throw InvalidArgument("preset = \"" + s + "\": must be \"converging\" or \"papers\"");
+}
+
 std::string to_string(WidthMetric m) { return m == WidthMetric::AsPrinted ? "as_printed" : "exact"; }
 
 WidthMetric width_metric_from_string(const std::string& s) {

@@ -743,6 +743,26 @@ TEST(Config, CliDefaultsAreTheLibraryDefaults) {
   EXPECT_EQ(c.physics.rho_ref, io.rho_ref);
   EXPECT_EQ(c.physics.kappa, eo.kappa);
   EXPECT_EQ(c.treatment.reservoir_sublayers, ProjectionOptions{}.reservoir_sublayers);
+  // The set-up and the treatment: the library's RunSetupOptions and the converging preset.
+  const RunSetupOptions ro;
+  const TreatmentOptions to = treatment_preset(TreatmentPreset::Converging, 3);
+  EXPECT_EQ(c.treatment.preset, to_string(TreatmentPreset::Converging));
+  EXPECT_EQ(c.treatment.no_flux, to_string(to.no_flux));
+  EXPECT_EQ(c.treatment.dirichlet, to_string(to.dirichlet));
+  EXPECT_EQ(c.treatment.reservoir_profile, to_string(to.reservoir_profile));
+  EXPECT_EQ(c.treatment.reservoir_control, to_string(to.reservoir_control));
+  EXPECT_EQ(c.treatment.reservoir_width, to.reservoir_width);
+  EXPECT_EQ(c.treatment.reservoir_tolerance, to.reservoir_tolerance);
+  EXPECT_EQ(c.treatment.reservoir_candidates, to.reservoir_candidates);
+  EXPECT_EQ(c.treatment.neumann_outflow, "nearest");
+  EXPECT_EQ(to.neumann_outflow, NeumannOutflow::NearestParticles);
+  EXPECT_EQ(c.particles.spacing_rule, to_string(to.spacing_rule));
+  EXPECT_EQ(c.particles.n_inf, ro.n_inf);
+  EXPECT_EQ(c.particles.beta_factor, ro.beta_factor);
+  EXPECT_EQ(c.run.t_end, ro.t_end);
+  EXPECT_EQ(c.run.dt_factor, ro.dt_factor);
+  EXPECT_EQ(c.solver.barrier_factor, ro.barrier_factor);
+  EXPECT_EQ(c.solver.kernel_tolerance, ro.kernel_tolerance);
   // Today's values, bit for bit.
   EXPECT_EQ(s.displacement_tolerance, 1e-3);
   EXPECT_EQ(s.relative_tolerance, 1e-2);

@@ -179,6 +179,17 @@ enum class NoFluxTreatment { Barrier, Images };
 std::string to_string(NoFluxTreatment t);
 NoFluxTreatment no_flux_treatment_from_string(const std::string& s);  // "barrier" | "images"
 
+// ---- Run set-up (run_setup.hpp)
+
+// The boundary treatment as a whole (docs/boundaries.md): what study 5
+// measured best (images, the odd reservoir, outlets that reach the nearest
+// particles, the true spacing), or Sec. 4.2 of the 2025 paper (barrier, the
+// b-thick Dirichlet layer, outlets that take only from B_l, and in 3-D the
+// sphere-radius spacing of Tables 1-3).
+enum class TreatmentPreset { Converging, Papers };
+std::string to_string(TreatmentPreset p);
+TreatmentPreset treatment_preset_from_string(const std::string& s);  // "converging" | "papers"
+
 // ---- Initial fill (initial_fill.hpp)
 
 enum class FillShape { Uniform, Gaussian, Cosine };

@@ -122,43 +122,13 @@ def converging_options(domain, boundary, n_inf, length_L, particle_mass, kappa=1
     from the true spacing (|Omega| / n_inf)^(1/d). SimulationOptions() alone is the papers' treatment
     (the b-thick Dirichlet layer), which does not converge to the analytic references (docs/validation.md).
 
-    domain, boundary: as for Simulation (the reservoir is used when a patch is Dirichlet); n_inf: the particle
-    count the spacing is for; length_L: L of the layer b = sqrt(L dr); particle_mass: m_p (the configuration's
-    M_inf / n_inf). time_control, seed and max_particles stay the library's defaults (the command line sets
-    them from its run section). Returns a new SimulationOptions to adjust further."""
-    import math
-
-    pp = paper_parameters(domain.volume, n_inf, domain.dim, length_L=length_L, kappa=kappa)  # (36)-(40), cube rule
-    neighbor = NeighborOptions()
+    A shorthand for the library's otfp.setup_run (RunSetupOptions holds every input, setup_run(...).parameters
+    the numbers (36)-(40) and the step). domain, boundary: as for Simulation (the reservoir is used when a patch
+    is Dirichlet); n_inf: the particle count the spacing is for; length_L: L of the layer b = sqrt(L dr);
+    particle_mass: m_p (the configuration's M_inf / n_inf). Returns a new SimulationOptions to adjust further."""
+    o = RunSetupOptions()
+    o.n_inf, o.length_L, o.particle_mass = n_inf, length_L, particle_mass
+    o.kappa, o.rho_ref, o.stepper = kappa, rho_ref, stepper
     if kernel_tolerance is not None:
-        neighbor.kernel_tolerance = kernel_tolerance
-    neighbor.skin = -1.0
-    neighbor.skin_factor = ImplicitOptions().neighbor.skin_factor  # the command line's solver.skin_factor
-    opts = SimulationOptions()
-    opts.particle_mass = particle_mass
-    opts.width_s = pp.width_s
-    opts.barrier_stiffness = pp.barrier_C  # solver.barrier_factor = 1: C = 1 / dt_explicit
-    opts.no_flux = "images"
-    opts.fill_reservoir_at_start = True
-    opts.stepper = stepper
-    projection = opts.projection
-    projection.layer_b = pp.layer_b
-    projection.neumann_outflow = "nearest_particles"
-    if any(str(b.kind) == "dirichlet" for b in boundary):
-        r_c = cutoff_radius(pp.width_s, neighbor.kernel_tolerance)  # treatment.reservoir_width = 1 cut-off
-        projection.dirichlet_mode = "reservoir"
-        projection.reservoir_thickness = r_c
-        projection.reservoir_sublayers = max(1, math.floor(2.0 * r_c / pp.dr + 0.5))  # about half a spacing each
-        projection.reservoir_profile = "odd"
-        projection.reservoir_control = "quiet"  # treatment.reservoir_control
-    opts.projection = projection
-    if str(opts.stepper) == "implicit":
-        implicit = opts.implicit
-        implicit.kappa, implicit.rho_ref, implicit.neighbor = kappa, rho_ref, neighbor
-        implicit.nominal_width = pp.width_s
-        opts.implicit = implicit
-    else:
-        explicit = opts.explicit_options
-        explicit.kappa, explicit.rho_ref, explicit.neighbor = kappa, rho_ref, neighbor
-        opts.explicit_options = explicit
-    return opts
+        o.kernel_tolerance = kernel_tolerance
+    return setup_run(domain, boundary, o).options

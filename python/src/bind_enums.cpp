@@ -87,6 +87,11 @@ void bind_enums(py::module_& m) {
   bind_enum<NoFluxTreatment>(m, "NoFluxTreatment",
                              {{"Barrier", NoFluxTreatment::Barrier}, {"Images", NoFluxTreatment::Images}},
                              no_flux_treatment_from_string);
+  bind_enum<SpacingRule>(m, "SpacingRule", {{"Cube", SpacingRule::Cube}, {"SphereRadius", SpacingRule::SphereRadius}},
+                         spacing_rule_from_string);
+  bind_enum<TreatmentPreset>(m, "TreatmentPreset",
+                             {{"Converging", TreatmentPreset::Converging}, {"Papers", TreatmentPreset::Papers}},
+                             treatment_preset_from_string);
   bind_enum<FillShape>(m, "FillShape",
                        {{"Uniform", FillShape::Uniform}, {"Gaussian", FillShape::Gaussian}, {"Cosine", FillShape::Cosine}},
                        fill_shape_from_string);

@@ -15,6 +15,7 @@ void bind_summaries(pybind11::module_& m);           // bind_summaries.cpp: what
 void bind_steppers(pybind11::module_& m);            // bind_steppers.cpp: Functional, ImplicitStepper, ExplicitStepper
 void bind_simulation(pybind11::module_& m);          // bind_simulation.cpp: Simulation
 void bind_references(pybind11::module_& m);          // bind_references.cpp: parameter rules, diagnostics, analytic
+void bind_run_setup(pybind11::module_& m);           // bind_run_setup.cpp: presets, RunSetupOptions, setup_run
 void bind_config(pybind11::module_& m);              // bind_config.cpp: ConfiguredRun, load_config (needs otfp_app)
 
 }  // namespace otfp::python

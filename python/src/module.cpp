@@ -13,6 +13,7 @@
 //   bind_steppers.cpp             Functional, ImplicitStepper, ExplicitStepper
 //   bind_simulation.cpp           Simulation
 //   bind_references.cpp           parameter rules (36)-(40), diagnostics, otfp.analytic
+//   bind_run_setup.cpp            treatment presets, RunSetupOptions, setup_run
 //   bind_config.cpp               ConfiguredRun, load_config: the only file that
 //                                 needs the command-line tool's library otfp_app
 //
@@ -55,5 +56,6 @@ PYBIND11_MODULE(_otfp, m) {
   bind_steppers(m);
   bind_simulation(m);
   bind_references(m);
+  bind_run_setup(m);
   bind_config(m);
 }

@@ -19,6 +19,7 @@
 #include <map>
 #include <numbers>
 #include <optional>
+#include <regex>
 
 #include "domain_setup.hpp"
 #include "otfp/analytic.hpp"
@@ -30,6 +31,7 @@
 #include "otfp/neighbor_list.hpp"
 #include "otfp/density.hpp"
 #include "otfp/parameters.hpp"
+#include "otfp/run_setup.hpp"
 #include "otfp/surface.hpp"
 #include "otfp/vtk.hpp"
 #include "otfp/particle_io.hpp"
@@ -255,6 +257,81 @@ void check_fill_file(const Config& c, const otfp::Simulation& sim, const Particl
   }
 }
 
+// The library's set-up inputs (run_setup.hpp) from the configuration; L is
+// resolved by the caller (particles.length_L or the domain's).
+RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded) {
+  RunSetupOptions o;
+  o.n_inf = c.particles.n_inf;
+  o.kappa = c.physics.kappa;
+  o.rho_ref = c.physics.rho_ref;
+  o.beta_factor = c.particles.beta_factor;
+  o.width = WidthScaling{c.particles.width_exponent, static_cast<std::size_t>(c.particles.width_reference_n)};
+  o.length_L = length_L;
+  o.layer_b = c.particles.layer_b;
+  o.t_end = c.run.t_end;
+  o.dt = c.run.dt.value_or(0.0);
+  o.dt_factor = c.run.dt_factor;
+  o.barrier_factor = c.solver.barrier_factor;
+  o.barrier_stiffness = c.solver.barrier_stiffness.value_or(0.0);
+  o.kernel_tolerance = c.solver.kernel_tolerance;
+  o.bounded = bounded;
+  o.stepper = stepper_kind_from_string(c.solver.stepper);
+  const TreatmentSection& tr = c.treatment;
+  TreatmentOptions& t = o.treatment;
+  t.no_flux = no_flux_treatment_from_string(tr.no_flux);
+  t.dirichlet = dirichlet_mode_from_string(tr.dirichlet);
+  t.reservoir_profile = reservoir_profile_from_string(tr.reservoir_profile);
+  t.reservoir_control = reservoir_control_from_string(tr.reservoir_control);
+  t.reservoir_width = tr.reservoir_width;
+  t.reservoir_sublayers = static_cast<int>(tr.reservoir_sublayers);
+  t.reservoir_tolerance = tr.reservoir_tolerance;
+  t.reservoir_candidates = static_cast<int>(tr.reservoir_candidates);
+  t.neumann_outflow = tr.neumann_outflow == "nearest" ? NeumannOutflow::NearestParticles : NeumannOutflow::Layer;
+  t.absorb_stranded = tr.stranded == "absorb";
+  t.spacing_rule = spacing_rule_from_string(c.particles.spacing_rule);
+  return o;
+}
+
+// An InvalidArgument of run_parameters() ("<field> = <value>: <rule>") as a
+// ConfigError naming the configuration key of the field.
+[[noreturn]] void throw_keyed(const InvalidArgument& e) {
+  static const std::vector<std::pair<std::string, std::string>> keys = {
+      {"n_inf", "particles.n_inf"},
+      {"n", "particles.n_inf"},
+      {"kappa", "physics.kappa"},
+      {"rho_ref", "physics.rho_ref"},
+      {"beta_factor", "particles.beta_factor"},
+      {"width exponent q", "particles.width_exponent"},
+      {"width reference n", "particles.width_reference_n"},
+      {"length_L", "particles.length_L"},
+      {"layer_b", "particles.layer_b"},
+      {"t_end", "run.t_end"},
+      {"dt", "run.dt"},
+      {"dt_factor", "run.dt_factor"},
+      {"barrier_factor", "solver.barrier_factor"},
+      {"barrier_stiffness", "solver.barrier_stiffness"},
+      {"kernel_tolerance", "solver.kernel_tolerance"},
+      {"reservoir_width", "treatment.reservoir_width"},
+      {"reservoir_sublayers", "treatment.reservoir_sublayers"},
+      {"reservoir_tolerance", "treatment.reservoir_tolerance"},
+      {"reservoir_candidates", "treatment.reservoir_candidates"},
+  };
+  const std::string what = e.what();
+  for (const auto& [field, key] : keys)
+    if (what.rfind(field + " = ", 0) == 0) {
+      // The rule may name other fields: those of the step and the barrier by their keys as well.
+      std::string rule = what.substr(field.size());
+      for (const char* name : {"kappa", "t_end", "dt_factor", "barrier_factor"})
+        rule = std::regex_replace(rule, std::regex(std::string("\\b") + name + "\\b"),
+                                  std::string(name == std::string("kappa")            ? "physics."
+                                              : name == std::string("barrier_factor") ? "solver."
+                                                                                      : "run.") +
+                                      name);
+      throw ConfigError(key, key + rule);
+    }
+  throw ConfigError("particles", std::string("particles: ") + what);
+}
+
 }  // namespace
 
 // Everything that changes while running.
@@ -372,26 +449,41 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     any_layer = any_layer || uses_layer;
   }
 
-  // Spacing, width, layer, time step, barrier: (36)-(40).
-  Derived& d = derived_;
-  d.volume = domain_->volume();
-  d.length_L = c.particles.length_L > 0.0 ? c.particles.length_L : st.built.length_L;
-  const SpacingRule rule = spacing_rule_from_string(c.particles.spacing_rule);
-  PaperParameters pp;
-  try {
-    const WidthScaling ws{c.particles.width_exponent, static_cast<std::size_t>(c.particles.width_reference_n)};
-    pp = paper_parameters(d.volume, static_cast<std::size_t>(c.particles.n_inf), dim, d.length_L, c.physics.kappa,
-                          c.particles.beta_factor, rule, ws);
-  } catch (const InvalidArgument& e) {
-    throw ConfigError("particles", std::string("particles: ") + e.what());
+  // The library's data per patch (no-flux patches have none).
+  std::vector<ConstantBoundaryData> data;
+  for (PatchInfo& p : patches_) {
+    if (p.kind == "no_flux") continue;
+    ConstantBoundaryData bd;
+    bd.patch = p.id;
+    bd.kind = p.kind == "dirichlet" ? PatchKind::Dirichlet : PatchKind::Neumann;
+    bd.value = p.value;
+    if (bd.kind == PatchKind::Neumann) {
+      bd.t_start = p.t_start;
+      bd.t_end = p.t_end.value_or(std::numeric_limits<double>::infinity());
+    }
+    p.condition = static_cast<int>(data.size());
+    data.push_back(bd);
   }
-  d.dr = pp.dr;
-  d.beta = pp.beta;
-  d.width_s = pp.width_s;
-  d.width_reference_dr = pp.dr_ref;
-  d.true_spacing = spacing(d.volume, static_cast<std::size_t>(c.particles.n_inf), dim);
+
+  // Spacing, width, layer, time step, barrier (36)-(40) and the band: the
+  // library's rules (run_setup.hpp), its fields named by their keys here.
+  Derived& d = derived_;
+  d.length_L = c.particles.length_L > 0.0 ? c.particles.length_L : st.built.length_L;
+  RunSetupOptions ro = run_setup_options(c, d.length_L, !free_space_);
+  RunParameters rp;
+  try {
+    rp = run_parameters(*domain_, data, ro);
+  } catch (const InvalidArgument& e) {
+    throw_keyed(e);
+  }
+  d.volume = rp.volume;
+  d.dr = rp.dr;
+  d.beta = rp.beta;
+  d.width_s = rp.width_s;
+  d.width_reference_dr = rp.width_reference_dr;
+  d.true_spacing = rp.true_spacing;
   d.beta_true_spacing2 = d.beta * d.true_spacing * d.true_spacing;
-  d.layer_b = c.particles.layer_b > 0.0 ? c.particles.layer_b : pp.layer_b;
+  d.layer_b = rp.layer_b;
   // Given where nothing uses it, it would only seem to have been applied.
   if (c.particles.layer_b > 0.0 && !any_layer)
     throw ConfigError("particles.layer_b", fmt::format("{}", c.particles.layer_b),
@@ -403,28 +495,13 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     throw ConfigError("particles.layer_b",
                       fmt::format("{}{}", d.layer_b, c.particles.layer_b > 0.0 ? "" : " (sqrt(length_L dr))"),
                       fmt::format("must be < half the smallest extent of the domain ({})", 0.5 * st.built.min_extent));
-  d.dt_explicit = pp.dt_explicit;
-  const double dt0 = c.run.dt ? *c.run.dt : c.run.dt_factor * d.dt_explicit;
-  const double steps = std::ceil(c.run.t_end / dt0 * (1.0 - 1e-12));
-  if (!(steps <= 1e9)) {
-    if (c.run.dt)
-      throw ConfigError("run.dt", fmt::format("{}", *c.run.dt),
-                        fmt::format("gives {} steps to run.t_end = {} (more than 1e9)", steps, c.run.t_end));
-    // dt comes from three keys; the message names them all with their values.
-    throw ConfigError("run.dt_factor", fmt::format("{}", c.run.dt_factor),
-                      fmt::format("dt = run.dt_factor dr^2 / physics.kappa = {} (physics.kappa = {}, dr = {}) gives {} "
-                                  "steps to run.t_end = {} (more than 1e9)",
-                                  dt0, c.physics.kappa, d.dr, steps, c.run.t_end));
-  }
-  d.n_steps = std::max<std::int64_t>(1, static_cast<std::int64_t>(steps));
-  d.dt = c.run.t_end / static_cast<double>(d.n_steps);
+  d.dt_explicit = rp.dt_explicit;
+  d.n_steps = rp.n_steps;
+  d.dt = rp.dt;
   d.steps_to_run = c.run.max_steps > 0 ? std::min(d.n_steps, c.run.max_steps) : d.n_steps;
-  d.barrier_C = c.solver.barrier_stiffness ? *c.solver.barrier_stiffness : c.solver.barrier_factor / d.dt_explicit;
-  if (!c.solver.barrier_stiffness && !(std::isfinite(d.barrier_C) && d.barrier_C > 0.0))
-    throw ConfigError("solver.barrier_factor", fmt::format("{}", c.solver.barrier_factor),
-                      fmt::format("gives the barrier stiffness C = barrier_factor / dt_explicit = {} (dt_explicit = "
-                                  "dr^2 / physics.kappa = {}): must be finite and > 0",
-                                  d.barrier_C, d.dt_explicit));
+  d.barrier_C = rp.barrier_C;
+  d.reservoir_width = rp.reservoir_width;
+  d.reservoir_sublayers = rp.reservoir_sublayers;
 
   // Net Neumann inflow over [0, t_end] (f is the outward flux: inflow is -f).
   for (const PatchInfo& p : patches_)
@@ -439,13 +516,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     d.M_inf = *c.diagnostics.M_inf;
     d.M_inf_rule = "diagnostics.M_inf";
   } else if (any_dirichlet) {
-    double ga = 0.0, area = 0.0;
-    for (const PatchInfo& p : patches_)
-      if (p.kind == "dirichlet") {
-        ga += p.value * p.area;
-        area += p.area;
-      }
-    d.M_inf = area > 0.0 ? ga / area * d.volume : 0.0;
+    d.M_inf = rp.M_inf;
     d.M_inf_rule = "area-weighted mean Dirichlet g x |Omega|";
   } else if (pa.fill == "file") {
     st.file_particles = read_fill_file(c, domain_);
@@ -584,55 +655,18 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   }
 
   // The library object: projection, barrier, walls and stepper (Algorithm 1).
-  std::vector<ConstantBoundaryData> data;
-  for (PatchInfo& p : patches_) {
-    if (p.kind == "no_flux") continue;
-    ConstantBoundaryData bd;
-    bd.patch = p.id;
-    bd.kind = p.kind == "dirichlet" ? PatchKind::Dirichlet : PatchKind::Neumann;
-    bd.value = p.value;
-    if (bd.kind == PatchKind::Neumann) {
-      bd.t_start = p.t_start;
-      bd.t_end = p.t_end.value_or(std::numeric_limits<double>::infinity());
-    }
-    p.condition = static_cast<int>(data.size());
-    data.push_back(bd);
-  }
-  const TreatmentSection& tr = c.treatment;
-  SimulationOptions so;
-  so.particle_mass = d.particle_mass;
-  so.width_s = d.width_s;
-  so.bounded = !free_space_;
-  so.barrier_stiffness = d.barrier_C;
-  so.no_flux = no_flux_treatment_from_string(tr.no_flux);
+  rp.M_inf = d.M_inf;
+  rp.particle_mass = d.particle_mass;
+  SimulationOptions so = simulation_options(rp, ro);
   so.seed = static_cast<std::uint64_t>(c.run.seed);
   so.max_particles = d.max_particles;
-  ProjectionOptions& po = so.projection;
-  po.layer_b = d.layer_b;
-  po.neumann_outflow = tr.neumann_outflow == "nearest" ? NeumannOutflow::NearestParticles : NeumannOutflow::Layer;
-  po.absorb_exterior = tr.dirichlet == "layer" && tr.stranded == "absorb";
-  po.dirichlet_target = dirichlet_target_from_string(pa.dirichlet_target);
-  if (tr.dirichlet == "reservoir" && any_dirichlet) {
-    // Band of width w = reservoir_width * r_c, round(2 w / dr) sublayers unless given.
-    d.reservoir_width = tr.reservoir_width * cutoff_radius(d.width_s, c.solver.kernel_tolerance);
-    d.reservoir_sublayers = tr.reservoir_sublayers > 0
-                                ? static_cast<int>(tr.reservoir_sublayers)
-                                : std::max(1, static_cast<int>(std::lround(2.0 * d.reservoir_width / d.dr)));
-    po.dirichlet_mode = DirichletMode::Reservoir;
-    po.reservoir_thickness = d.reservoir_width;
-    po.reservoir_sublayers = d.reservoir_sublayers;
-    po.reservoir_profile = tr.reservoir_profile == "odd" ? ReservoirProfile::Odd : ReservoirProfile::Uniform;
-    po.reservoir_control = reservoir_control_from_string(tr.reservoir_control);
-    po.reservoir_tolerance = tr.reservoir_tolerance;
-    po.reservoir_candidates = static_cast<int>(tr.reservoir_candidates);
-  }
-  so.fill_reservoir_at_start = true;
+  so.projection.dirichlet_target = dirichlet_target_from_string(pa.dirichlet_target);
+  const TreatmentSection& tr = c.treatment;
   const SolverSection& s = c.solver;
   NeighborOptions nb;
   nb.kernel_tolerance = s.kernel_tolerance;
   nb.skin = -1.0;
   nb.skin_factor = s.skin_factor;
-  so.stepper = stepper_kind_from_string(s.stepper);
   if (so.stepper == StepperKind::Implicit) {
     ImplicitOptions& io = so.implicit;
     io.minimizer.backend = backend_from_string(s.backend);
@@ -651,17 +685,12 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     io.stopping_norm = stopping_norm_from_string(s.stopping_norm);
     io.max_norm_factor = s.max_norm_factor;
     io.max_width_factor = s.max_width_factor;
-    io.nominal_width = d.width_s;  // the bound is max_width_factor x the run's s0
-    io.kappa = c.physics.kappa;
-    io.rho_ref = c.physics.rho_ref;
     io.neighbor = nb;
     io.max_halvings = static_cast<int>(s.max_halvings);
     io.energy_tolerance = s.energy_tolerance;
   } else {
     ExplicitOptions& eo = so.explicit_options;
     eo.scheme = explicit_scheme_from_string(s.explicit_scheme);
-    eo.kappa = c.physics.kappa;
-    eo.rho_ref = c.physics.rho_ref;
     eo.neighbor = nb;
   }
   so.velocity = c.physics.velocity;
@@ -669,7 +698,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   // Adaptive dt (run.dt_mode): the controller's bounds; dt_max is at least dt_min.
   TimeStepControlOptions& tco = so.time_control;
   tco.tolerance = c.run.time_tolerance;
-  tco.dt_min = c.run.dt_min ? *c.run.dt_min : 1e-3 * d.dt;
+  if (c.run.dt_min) tco.dt_min = *c.run.dt_min;  // else the library's 1e-3 dt
   tco.dt_max = std::max(c.run.dt_max ? *c.run.dt_max : c.run.t_end, tco.dt_min);
   check_magnitudes(data);
   try {
@@ -686,12 +715,17 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
         // in reservoir_sublayers sublayers: the key at fault is one whose
         // default makes the setup work (tried here, on the error path only);
         // otherwise the band is too wide for this domain and spacing.
+        auto band = [&](double tolerance, std::int64_t sublayers) {
+          RunSetupOptions r = ro;
+          r.kernel_tolerance = tolerance;
+          r.treatment.reservoir_sublayers = static_cast<int>(sublayers);
+          return run_parameters(*domain_, st.data, r);
+        };
         auto works = [&](double tolerance, std::int64_t sublayers) {
           SimulationOptions o = so;
-          const double w = tr.reservoir_width * cutoff_radius(d.width_s, tolerance);
-          o.projection.reservoir_thickness = w;
-          o.projection.reservoir_sublayers =
-              sublayers > 0 ? static_cast<int>(sublayers) : std::max(1, static_cast<int>(std::lround(2.0 * w / d.dr)));
+          const RunParameters b = band(tolerance, sublayers);
+          o.projection.reservoir_thickness = b.reservoir_width;
+          o.projection.reservoir_sublayers = b.reservoir_sublayers;
           o.implicit.neighbor.kernel_tolerance = o.explicit_options.neighbor.kernel_tolerance = tolerance;
           try {
             otfp::Simulation trial(domain_, st.data, o);
@@ -707,7 +741,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
               fmt::format("sublayers of {:.4g} (band {:.4g}, spacing dr = {:.4g}) are too thin for the odd profile to "
                           "mirror inside Omega ({}); use fewer (0: round(2 w / dr) = {} works)",
                           d.reservoir_width / static_cast<double>(tr.reservoir_sublayers), d.reservoir_width, d.dr,
-                          e.what(), std::max(1L, std::lround(2.0 * d.reservoir_width / d.dr))));
+                          e.what(), band(c.solver.kernel_tolerance, 0).reservoir_sublayers));
         if (c.solver.kernel_tolerance != default_tolerance && works(default_tolerance, tr.reservoir_sublayers))
           throw ConfigError(
               "solver.kernel_tolerance", fmt::format("{}", c.solver.kernel_tolerance),

@@ -21,6 +21,7 @@
 
 #include "otfp/explicit_stepper.hpp"
 #include "otfp/implicit_stepper.hpp"
+#include "otfp/run_setup.hpp"
 #include "otfp/types.hpp"
 
 namespace otfp::app {
@@ -38,13 +39,13 @@ class ConfigError : public std::runtime_error {
 
 struct RunSection {
   int dim = 3;
-  double t_end = 1.0;
+  double t_end = RunSetupOptions{}.t_end;
   std::optional<double> dt;  // absent: dt_factor * dr^2 / kappa
-  double dt_factor = 1.0;
-  std::int64_t seed = 1;
+  double dt_factor = RunSetupOptions{}.dt_factor;
+  std::int64_t seed = static_cast<std::int64_t>(SimulationOptions{}.seed);
   std::int64_t max_steps = 0;  // 0: no limit
   std::string dt_mode = "fixed";  // fixed | adaptive (implicit stepper, docs/stepper.md)
-  double time_tolerance = 1e-2;   // adaptive: largest local error estimate per step, in blob widths
+  double time_tolerance = TimeStepControlOptions{}.tolerance;   // adaptive: largest local error estimate per step, in blob widths
   std::optional<double> dt_min;   // adaptive: absent = 1e-3 x the initial dt
   std::optional<double> dt_max;   // adaptive: absent = t_end
   std::int64_t vtk_interval = 50;  // 0: initial and final snapshot only
@@ -75,15 +76,15 @@ struct DomainSection {
 };
 
 struct ParticlesSection {
-  std::int64_t n_inf = 400;
+  std::int64_t n_inf = RunSetupOptions{}.n_inf;
   std::optional<double> mass;
-  std::string spacing_rule = "cube";  // cube | sphere_radius (default: cube; sphere_radius in 3-D under treatment.preset = "papers")
-  double beta_factor = 2.0;
-  double width_exponent = 1.0;            // q: s = s_rule(dr) (dr / dr_ref)^(q - 1), in (0, 2]
-  std::int64_t width_reference_n = 400;   // n at which dr_ref is taken (>= 1)
+  std::string spacing_rule = to_string(TreatmentOptions{}.spacing_rule);  // cube | sphere_radius (default: cube; sphere_radius in 3-D under treatment.preset = "papers")
+  double beta_factor = RunSetupOptions{}.beta_factor;
+  double width_exponent = WidthScaling{}.exponent;           // q: s = s_rule(dr) (dr / dr_ref)^(q - 1), in (0, 2]
+  std::int64_t width_reference_n = static_cast<std::int64_t>(WidthScaling{}.reference_n);  // n at which dr_ref is taken (>= 1)
   double layer_b = 0.0;   // 0: sqrt(length_L dr)
   double length_L = 0.0;  // 0: from the domain
-  std::string dirichlet_target = "cell_integral";  // cell_integral | paper_eq34
+  std::string dirichlet_target = to_string(ProjectionOptions{}.dirichlet_target);  // cell_integral | paper_eq34
   std::string fill = "empty";  // empty | uniform | gaussian | cosine | file
   // fill = "file": the particle file, resolved against the directory of the
   // configuration file (parse_config_string: the current directory).
@@ -98,8 +99,8 @@ struct ParticlesSection {
 };
 
 struct PhysicsSection {
-  double kappa = 1.0;
-  double rho_ref = 1.0;
+  double kappa = RunSetupOptions{}.kappa;
+  double rho_ref = RunSetupOptions{}.rho_ref;
   Vec3 velocity = Vec3::Zero();
   double source_rate = 0.0;
 };
@@ -134,7 +135,7 @@ struct SolverSection {
   std::int64_t lbfgs_memory = ImplicitOptions{}.minimizer.lbfgs_memory;
   std::int64_t max_halvings = ImplicitOptions{}.max_halvings;
   double energy_tolerance = ImplicitOptions{}.energy_tolerance;
-  double barrier_factor = 1.0;
+  double barrier_factor = RunSetupOptions{}.barrier_factor;
   std::optional<double> barrier_stiffness;
   double kernel_tolerance = ImplicitOptions{}.neighbor.kernel_tolerance;
   double skin_factor = ImplicitOptions{}.neighbor.skin_factor;
@@ -146,16 +147,17 @@ struct SolverSection {
 // The defaults are the "converging" preset (docs/validation.md, study 5);
 // treatment.preset = "papers" restores Sec. 4.2 (see apply_treatment_preset).
 struct TreatmentSection {
-  std::string preset = "converging";        // converging | papers: the defaults of the keys below
-  std::string no_flux = "images";           // barrier | images (image blobs at every non-Dirichlet wall)
-  std::string dirichlet = "reservoir";      // layer (Sec. 4.2) | reservoir (persistent band outside the face)
-  double reservoir_width = 1.0;             // band thickness in units of the kernel cut-off r_c of the blobs
-  std::int64_t reservoir_sublayers = 0;     // 0: round(2 w / dr), half a spacing per sublayer
-  std::string reservoir_profile = "odd";    // uniform (g) | odd (2 g - interior mirror density)
-  std::string reservoir_control = "quiet";  // quiet (tolerance band, density-ranked placement) | exact (issue 10)
-  double reservoir_tolerance = 1.0;         // quiet: correct a sublayer when |N - X| > max(1, this sqrt(X))
-  std::int64_t reservoir_candidates = 4;    // quiet: fixed candidate points per target particle
-  std::string neumann_outflow = "nearest";  // layer (B_l only) | nearest (beyond B_l when it runs empty)
+  std::string preset = to_string(TreatmentPreset::Converging); // converging | papers: the defaults of the keys below
+  std::string no_flux = to_string(TreatmentOptions{}.no_flux); // barrier | images (image blobs at every non-Dirichlet wall)
+  std::string dirichlet = to_string(TreatmentOptions{}.dirichlet); // layer (Sec. 4.2) | reservoir (persistent band outside the face)
+  double reservoir_width = TreatmentOptions{}.reservoir_width; // band thickness in units of the kernel cut-off r_c of the blobs
+  std::int64_t reservoir_sublayers = TreatmentOptions{}.reservoir_sublayers; // 0: round(2 w / dr), half a spacing per sublayer
+  std::string reservoir_profile = to_string(TreatmentOptions{}.reservoir_profile); // uniform (g) | odd (2 g - interior mirror density)
+  std::string reservoir_control = to_string(TreatmentOptions{}.reservoir_control); // quiet (tolerance band, density-ranked placement) | exact (issue 10)
+  double reservoir_tolerance = TreatmentOptions{}.reservoir_tolerance; // quiet: correct a sublayer when |N - X| > max(1, this sqrt(X))
+  std::int64_t reservoir_candidates = TreatmentOptions{}.reservoir_candidates; // quiet: fixed candidate points per target particle
+  std::string neumann_outflow = "nearest";  // the library's NeumannOutflow::NearestParticles (an older name)
+  // layer (B_l only) | nearest (beyond B_l when it runs empty)
   std::string stranded = "keep";            // keep | absorb: particles beyond a Dirichlet face (layer treatment)
 };
 
