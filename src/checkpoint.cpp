@@ -321,6 +321,12 @@ void Simulation::save_checkpoint(const std::filesystem::path& path, const std::s
   }
   w.put(initial_.inserted);
   w.put(initial_.removed);
+  // run()'s grid of fixed steps (last: files without it load with no grid).
+  w.put(grid_.t_origin);
+  w.put(grid_.k_origin);
+  w.put(grid_.dt);
+  w.put(grid_.k_end);
+  w.put(grid_.t_end);
   w.put(fnv1a(w.bytes().data(), w.bytes().size()));
 
   // Atomic: a temporary file in the same directory, flushed, then renamed.
@@ -404,6 +410,17 @@ void Simulation::load_checkpoint(const std::filesystem::path& path, std::string*
     e.count = b.get<std::int32_t>();
   }
   const auto ins0 = b.get<std::int64_t>(), rem0 = b.get<std::int64_t>();
+  TimeGrid grid;
+  if (!b.at_end()) {
+    grid.t_origin = b.get<double>();
+    grid.k_origin = b.get<std::int64_t>();
+    grid.dt = b.get<double>();
+    grid.k_end = b.get<std::int64_t>();
+    grid.t_end = b.get<double>();
+    if (!(std::isfinite(grid.t_origin) && std::isfinite(grid.dt) && grid.dt >= 0.0 && std::isfinite(grid.t_end) &&
+          grid.k_origin >= 0 && grid.k_end >= grid.k_origin))
+      b.fail("a damaged grid of steps");
+  }
   if (!b.at_end()) b.fail("trailing bytes");
   if (!std::isfinite(t)) b.fail("non-finite time");
 
@@ -428,6 +445,7 @@ void Simulation::load_checkpoint(const std::filesystem::path& path, std::string*
   time_ = t;
   step_ = step;
   dt_next_ = dt_next;
+  grid_ = grid;
   ledger_ = ledger;
   totals_ = totals;
   initial_ = SimulationStep{};

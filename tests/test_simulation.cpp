@@ -106,6 +106,132 @@ TEST(Simulation, RunUntilShowsEveryStepAndEndsOnTheTime) {
   EXPECT_NEAR(ends[0], t_end / 3.0, 1e-15);
 }
 
+// run(): the time loop. Fixed steps on the grid t_k = k dt (the last on t_end
+// exactly), observed in order, with checkpoints at the cadence and at the end.
+namespace {
+struct Recorder : RunObserver {
+  std::vector<std::pair<std::int64_t, double>> steps;  // (k, t_k)
+  std::vector<bool> last;
+  std::vector<std::int64_t> checkpoints;                // step_count() at each on_checkpoint
+  void on_step(const Simulation& sim, const SimulationStep& step, bool is_last) override {
+    EXPECT_EQ(sim.time(), step.t_end);
+    steps.emplace_back(step.step, step.t_end);
+    last.push_back(is_last);
+  }
+  void on_checkpoint(const Simulation& sim) override { checkpoints.push_back(sim.step_count()); }
+};
+}  // namespace
+
+TEST(Simulation, RunStepsOnItsGridAndCheckpointsAtTheCadence) {
+  Disc disc(true);
+  auto sim = disc.make();
+  sim->start(disc.cloud(30, 5));
+  RunControl c;
+  c.t_end = 0.07;
+  c.dt = 0.01;
+  c.checkpoint_interval = 3;
+  Recorder r;
+  EXPECT_FALSE(sim->finished(c));
+  EXPECT_EQ(sim->run(c, &r), RunEnd::Completed);
+  ASSERT_EQ(r.steps.size(), 7u);
+  for (std::size_t i = 0; i < 7; ++i) {
+    EXPECT_EQ(r.steps[i].first, static_cast<std::int64_t>(i + 1));
+    // 0 + k h with h = t_end / n, the last on t_end itself.
+    EXPECT_EQ(r.steps[i].second, i == 6 ? 0.07 : static_cast<double>(i + 1) * (0.07 / 7.0)) << i;
+    EXPECT_EQ(r.last[i], i == 6);
+  }
+  EXPECT_EQ(r.checkpoints, (std::vector<std::int64_t>{3, 6, 7}));
+  EXPECT_EQ(sim->time_grid().dt, 0.07 / 7.0);
+  EXPECT_EQ(sim->time_grid().k_end, 7);
+  EXPECT_TRUE(sim->finished(c));
+  Recorder none;
+  EXPECT_EQ(sim->run(c, &none), RunEnd::Completed);  // nothing left: no step, no checkpoint
+  EXPECT_TRUE(none.steps.empty() && none.checkpoints.empty());
+  // A later end on the same step extends the grid: t_k = k h still.
+  c.t_end = 0.1;
+  EXPECT_EQ(sim->grid_for(c).k_end, 10);
+  sim->run(c, &none);
+  EXPECT_EQ(none.steps.front().second, 8.0 * (0.07 / 7.0));
+  EXPECT_EQ(sim->time(), 0.1);
+}
+
+// A run stopped after a step and continued from its checkpoint by another
+// Simulation is the run taken in one go, to the bit (the grid travels in the
+// checkpoint); max_steps ends a run early and says so.
+TEST(Simulation, RunStoppedAndResumedIsTheRunInOneGo) {
+  Disc disc(true);
+  RunControl c;
+  c.t_end = 0.05;
+  c.dt = 0.007;  // not a divisor: the grid's step is 0.05 / 8
+  auto whole = disc.make();
+  whole->start(disc.cloud(30, 9));
+  Recorder all;
+  EXPECT_EQ(whole->run(c, &all), RunEnd::Completed);
+  ASSERT_EQ(all.steps.size(), 8u);
+
+  auto first = disc.make();
+  first->start(disc.cloud(30, 9));
+  RunControl part = c;
+  part.stop = [](const SimulationStep& s) { return s.step == 3; };
+  Recorder head;
+  EXPECT_EQ(first->run(part, &head), RunEnd::Stopped);
+  EXPECT_EQ(head.last, (std::vector<bool>{false, false, true}));  // the stop makes step 3 the last
+  EXPECT_EQ(head.checkpoints, (std::vector<std::int64_t>{3}));    // and checkpoints it
+  const auto file = temp_file("run_resume.bin");
+  first->save_checkpoint(file);
+  auto second = disc.make();
+  second->load_checkpoint(file);
+  std::filesystem::remove(file);
+  EXPECT_EQ(second->time_grid().dt, first->time_grid().dt);
+  RunControl capped = c;
+  capped.max_steps = 6;
+  Recorder mid, tail;
+  EXPECT_EQ(second->run(capped, &mid), RunEnd::MaxSteps);
+  EXPECT_EQ(mid.steps.back().first, 6);
+  EXPECT_TRUE(second->finished(capped));
+  EXPECT_EQ(second->run(c, &tail), RunEnd::Completed);
+  EXPECT_EQ(tail.steps.size(), 2u);
+  EXPECT_EQ(second->time(), 0.05);
+  EXPECT_TRUE(same_state(second->particles(), whole->particles()));
+  for (std::size_t i = 0; i < 3; ++i) EXPECT_EQ(head.steps[i], all.steps[i]);
+  for (std::size_t i = 0; i < 3; ++i) EXPECT_EQ(mid.steps[i], all.steps[i + 3]);
+  for (std::size_t i = 0; i < 2; ++i) EXPECT_EQ(tail.steps[i], all.steps[i + 6]);
+}
+
+// A continued run asked for another end keeps its step (not the new dt):
+// equal steps of about the grid's step from where it stands.
+TEST(Simulation, RunToAnotherEndKeepsItsStep) {
+  Disc disc(false);
+  auto sim = disc.make();
+  sim->start(disc.cloud(20, 4));
+  RunControl c;
+  c.t_end = 0.04;
+  c.dt = 0.01;
+  sim->run(c);
+  RunControl later = c;
+  later.t_end = 0.065;
+  later.dt = 0.02;  // another dt: the grid keeps its own 0.01
+  const TimeGrid g = sim->grid_for(later);
+  EXPECT_EQ(g.t_origin, 0.04);
+  EXPECT_EQ(g.k_origin, 4);
+  EXPECT_EQ(g.k_end, 7);  // ceil(0.025 / 0.01) = 3 steps
+  EXPECT_EQ(g.dt, (0.065 - 0.04) / 3.0);
+  Recorder r;
+  sim->run(later, &r);
+  ASSERT_EQ(r.steps.size(), 3u);
+  EXPECT_EQ(r.steps[0].second, 0.04 + g.dt);
+  EXPECT_EQ(r.steps[2].second, 0.065);
+  // Bad controls are refused naming the field.
+  RunControl bad = c;
+  bad.dt = 0.0;
+  try {
+    sim->run(bad);
+    ADD_FAILURE() << "no error";
+  } catch (const InvalidArgument& e) {
+    EXPECT_EQ(std::string(e.what()).rfind("dt = 0: must be finite and > 0", 0), 0u) << e.what();
+  }
+}
+
 // A failed diffusive step throws and leaves the state the step started from,
 // even after advection and the source have run.
 TEST(Simulation, FailedStepKeepsTheState) {

@@ -124,6 +124,47 @@ struct SimulationStep {
   std::string full_report() const;
 };
 
+// The grid of a run's fixed steps (Simulation::run): step k ends at
+// t_origin + (k - k_origin) dt, the last one (k = k_end) on t_end exactly. A
+// checkpoint keeps it, so that a resumed run takes the same steps.
+struct TimeGrid {
+  double t_origin = 0.0;       // where the grid starts
+  std::int64_t k_origin = 0;   // the step number there
+  double dt = 0.0;             // its step (0: no grid yet)
+  std::int64_t k_end = 0;      // the step that ends on t_end
+  double t_end = 0.0;          // the end of the run it was made for
+  double time_of(std::int64_t k) const {
+    return k == k_end ? t_end : t_origin + static_cast<double>(k - k_origin) * dt;
+  }
+};
+
+// What Simulation::run() steps to and when it stops.
+struct RunControl {
+  double t_end = 0.0;          // end of the run (finite)
+  double dt = 0.0;             // fixed steps: the step of a new grid; adaptive: the first try (> 0)
+  bool adaptive = false;       // advance_adaptive() to t_end instead of the grid
+  std::int64_t max_steps = 0;  // stop after step number max_steps (step_count(), the whole run's); 0: no limit
+  std::int64_t checkpoint_interval = 0;  // on_checkpoint() after each step k with k % this == 0 (0: at the end only)
+  std::function<bool(const SimulationStep&)> stop;  // asked after every step: true ends the run with it
+  void validate() const;       // throws InvalidArgument naming the field
+};
+
+// What a caller of run() sees: every step, and the moments to checkpoint.
+class RunObserver {
+ public:
+  virtual ~RunObserver() = default;
+  // After every step; `last`: the run ends with this step (t_end, max_steps or a stop).
+  virtual void on_step(const class Simulation& sim, const SimulationStep& step, bool last) = 0;
+  // At the checkpoint cadence, and once after the last step (a stopped run too).
+  virtual void on_checkpoint(const class Simulation&) {}
+};
+
+enum class RunEnd {
+  Completed,  // t_end reached
+  MaxSteps,   // stopped at max_steps before t_end
+  Stopped     // the stop predicate ended it before either
+};
+
 class Simulation {
  public:
   // boundary: the data per patch (patches not listed are no-flux walls).
@@ -158,6 +199,20 @@ class Simulation {
   // time()) / dt) equal steps; the observer sees every step.
   using Observer = std::function<void(const Simulation&, const SimulationStep&)>;
   void run_until(double t_end, double dt, const Observer& observer = {}, bool adaptive = false);
+
+  // The time loop (the command line's too). Fixed steps follow time_grid():
+  // a new grid from time() with about control.dt per step; a run that
+  // continues a grid (after an earlier run() or load_checkpoint()) keeps it
+  // when its step is control.dt, moving only its end to control.t_end, and
+  // otherwise keeps its step: equal steps of about that step from time() to
+  // t_end. Adaptive: advance_adaptive(t_end), the first try control.dt
+  // (within the controller's bounds) unless one is pending. Returns at once,
+  // calling nothing, when finished(control). Throws StepFailure (the state
+  // of the failed step's start; the steps before it stand).
+  RunEnd run(const RunControl& control, RunObserver* observer = nullptr);
+  TimeGrid grid_for(const RunControl& control) const;  // the grid run(control) steps on (fixed steps)
+  bool finished(const RunControl& control) const;      // run(control) would take no step
+  const TimeGrid& time_grid() const { return grid_; }
 
   double time() const { return time_; }
   std::int64_t step_count() const { return step_; }
@@ -241,6 +296,7 @@ class Simulation {
   double time_ = 0.0;
   std::int64_t step_ = 0;
   double dt_next_ = 0.0;
+  TimeGrid grid_;
   std::vector<int> condition_of_patch_;
   std::shared_ptr<std::pair<double, double>> step_window_;
   std::unique_ptr<BoundaryProjection> projection_;

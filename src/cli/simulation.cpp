@@ -1352,10 +1352,19 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       }
     };
 
-    // Fixed dt: step k ends at t_origin + (k - k_origin) dt_run, the last one on
-    // t_end exactly (a resumed run keeps the grid when its dt is unchanged).
-    double t_origin = 0.0, dt_run = d.dt;
-    std::int64_t k_origin = 0, n_total = d.n_steps, k_done = 0;
+    // The library's time loop: fixed steps on its grid t_k = k dt (kept in the
+    // checkpoint: a resumed run keeps its grid when its dt is unchanged, and
+    // its step when run.t_end moved), or the adaptive controller.
+    RunControl control;
+    control.t_end = c.run.t_end;
+    control.dt = d.dt;
+    control.adaptive = c.run.dt_mode == "adaptive";
+    control.max_steps = c.run.max_steps;
+    control.checkpoint_interval = c.run.checkpoint_interval;
+    control.stop = [&](const SimulationStep& s) {
+      return (options.stop_flag && *options.stop_flag) ||
+             (options.stop_after_step > 0 && s.step >= options.stop_after_step);
+    };
     const std::filesystem::path checkpoint_file = out / "checkpoint.bin";
     // The configuration the checkpoints are written with (a resume must match it).
     const std::map<std::string, std::string> fingerprint = write ? config_fingerprint(c) : std::map<std::string, std::string>{};
@@ -1375,9 +1384,6 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       js["last_snapshot"] = last_snapshot;
       js["n0"] = n0;
       js["M0"] = M0;
-      js["t_origin"] = t_origin;
-      js["k_origin"] = k_origin;
-      js["dt_run"] = dt_run;
       js["last_step"] = last.step;
       js["last_t"] = last.t;
       js["last_mass_ratio"] = last.mass_ratio;
@@ -1480,38 +1486,19 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
           last.t = js.at("last_t").get<double>();
           last.mass_ratio = js.at("last_mass_ratio").get<double>();
           last.n_particles = js.at("last_n").get<std::int64_t>();
-          js.at("k_origin").get<std::int64_t>();
-          js.at("dt_run").get<double>();
         } catch (const nlohmann::json::exception& e) {
           throw ResumeRefused(fmt::format("checkpoint {}: not written by otfp run (its driver state: {})",
                                           checkpoint_file.string(), e.what()));
         }
-        k_done = sim.step_count();
+        const std::int64_t k_done = sim.step_count();
         if (!(c.run.t_end >= sim.time()))
           throw ResumeRefused(fmt::format("run.t_end = {}: must be >= the time t = {} of {} (step {})", c.run.t_end,
                                           sim.time(), checkpoint_file.string(), k_done));
-        const double dt_before = js.at("dt_run").get<double>();
-        if (!(js.at("k_origin").get<std::int64_t>() == 0 && dt_before == d.dt)) {
-          // A new t_end changed dt = t_end / n_steps: the rest of the run gets
-          // its own equal steps from the checkpoint on, as long as the steps
-          // of the run it continues (not the raw dt of run.dt or
-          // run.dt_factor, which t_end / n_steps rounded down).
-          const double dt0 = dt_before;
-          if (!(std::isfinite(dt0) && dt0 > 0.0))
-            throw ResumeRefused(fmt::format("checkpoint {}: its step dt = {} is not > 0", checkpoint_file.string(), dt0));
-          t_origin = sim.time();
-          k_origin = k_done;
-          const std::int64_t m = std::max<std::int64_t>(
-              1, static_cast<std::int64_t>(std::ceil((c.run.t_end - t_origin) / dt0 * (1.0 - 1e-12))));
-          dt_run = (c.run.t_end - t_origin) / static_cast<double>(m);
-          n_total = k_done + m;
-        }
-        step_dt = dt_run;
-        const bool done = c.run.dt_mode == "adaptive"
-                              ? sim.time() >= c.run.t_end || (c.run.max_steps > 0 && k_done >= c.run.max_steps)
-                              : sim.time() >= c.run.t_end ||
-                                    k_done >= (c.run.max_steps > 0 ? std::min(n_total, c.run.max_steps) : n_total);
-        if (done) {
+        if (!(sim.time_grid().dt > 0.0) && !control.adaptive)
+          throw ResumeRefused(fmt::format("checkpoint {}: holds no grid of steps (written by an older otfp?)",
+                                          checkpoint_file.string()));
+        step_dt = sim.grid_for(control).dt;
+        if (sim.finished(control)) {
           result.status = "completed";
           result.nothing_to_do = true;
           result.last = last;
@@ -1532,38 +1519,23 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       arm_kill_summary(last, true);
       write_file_atomic(out / "summary.json", summary("running", "", last).dump(2) + "\n");
     }
-    const std::int64_t steps_to_run = c.run.max_steps > 0 ? std::min(n_total, c.run.max_steps) : n_total;
-
-    // Adaptive dt (run.dt_mode): the library's controller proposes each step
-    // and undoes the tries its error test rejects.
-    const bool adaptive = c.run.dt_mode == "adaptive";
-    if (adaptive && !options.resume) {
-      const TimeStepControlOptions& tco = sim.options().time_control;
-      sim.set_next_dt(std::min(std::max(d.dt, tco.dt_min), tco.dt_max));
-    }
-    for (std::int64_t k = k_done + 1;; ++k) {
-      SimulationStep step;
-      if (!adaptive) {
-        if (k > steps_to_run) break;
-        step = sim.advance_to(k == n_total ? c.run.t_end : t_origin + static_cast<double>(k - k_origin) * dt_run);
-      } else {
-        if (sim.time() >= c.run.t_end || (c.run.max_steps > 0 && k > c.run.max_steps)) break;
-        step = sim.advance_adaptive(c.run.t_end);
-      }
-      step_dt = adaptive ? step.dt() : dt_run;
+    // Each step's row (the row of a stopped run's last step is final: snapshot
+    // and progress line), and the checkpoints at the run's cadence.
+    struct Observer : RunObserver {
+      std::function<void(const SimulationStep&, bool)> row;
+      std::function<void()> checkpoint;
+      void on_step(const otfp::Simulation&, const SimulationStep& step, bool last_step) override { row(step, last_step); }
+      void on_checkpoint(const otfp::Simulation&) override { checkpoint(); }
+    } observer;
+    observer.row = [&](const SimulationStep& step, bool last_step) {
+      step_dt = control.adaptive ? step.dt() : sim.time_grid().dt;
       step_rejections = step.error_rejections;
-      const bool stop = (options.stop_flag && *options.stop_flag) ||
-                        (options.stop_after_step > 0 && k >= options.stop_after_step);
-      const bool final_row = adaptive ? step.t_end >= c.run.t_end || k == c.run.max_steps : k == steps_to_run;
-      emit(diagnostics(k, step.t_end, &step.diffusion, static_cast<long>(step.inserted), static_cast<long>(step.removed)),
-           final_row || stop);
-      if (stop && !final_row) {
-        interrupted = true;
-        break;
-      }
-      if (!final_row && c.run.checkpoint_interval > 0 && k % c.run.checkpoint_interval == 0) write_checkpoint();
-    }
-    write_checkpoint();
+      emit(diagnostics(step.step, step.t_end, &step.diffusion, static_cast<long>(step.inserted),
+                       static_cast<long>(step.removed)),
+           last_step);
+    };
+    observer.checkpoint = write_checkpoint;
+    interrupted = sim.run(control, &observer) == RunEnd::Stopped;
     if (interrupted) {
       result.status = "interrupted";
       result.error = fmt::format("interrupted after step {} (t = {}); continue with: otfp run --resume {}", last.step,
