@@ -20,6 +20,7 @@
 #include "otfp/functional.hpp"
 #include "otfp/geometry.hpp"
 #include "otfp/images.hpp"
+#include "isa.hpp"
 #include "pair_kernels.hpp"
 #ifdef OTFP_BENCH_HAVE_BASELINE
 #include "baseline_kernels.hpp"

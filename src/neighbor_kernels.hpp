@@ -1,17 +1,17 @@
 #pragma once
 // Internal: the inner loops of NeighborList::build (src/neighbor_list.cpp),
 // compiled twice from src/neighbor_kernels_impl.inc: generic, and with AVX2
-// (src/neighbor_kernels_avx2.cpp, chosen at run time). No FMA: both builds
-// round every squared distance the same way, so the list does not depend on
-// the instruction set.
+// (src/neighbor_kernels_avx2.cpp, chosen at run time by src/isa.hpp). No FMA:
+// both builds round every squared distance the same way, so the list does not
+// depend on the instruction set.
 #include <cstddef>
 #include <cstdint>
 
 namespace otfp::neighbor_kernels {
 
-// Output arrays of both functions need room for len + 8 entries. The
-// functions in this namespace choose the build: avx2 = use_avx2().
-bool use_avx2();
+// Output arrays of both functions need room for len + 8 entries. avx2: run
+// the AVX2 build (the caller asks detail::use_avx2(), src/isa.hpp, once per
+// list build).
 
 // Appends to out the indices b + j, j < e - b, of the points (x, y, z)[b + j]
 // + shift whose squared gap to the box [lo, hi] is <= r2max (g2: scratch of

@@ -14,6 +14,7 @@
 #include <string>
 
 #include "cell_grid.hpp"
+#include "isa.hpp"
 #include "neighbor_kernels.hpp"
 #include "otfp/geometry.hpp"
 
@@ -32,18 +33,6 @@ std::size_t row_hits(const double* cx, const double* cy, const double* cz, const
                      double qx, double qy, double qz, double r2, std::uint32_t self, double* d2, std::uint32_t* out);
 }  // namespace avx2
 #endif
-// The AVX2 build when the CPU has it, unless OTFP_NEIGHBOR_KERNELS=generic
-// (read at each build; the tests compare both builds' lists).
-bool use_avx2() {
-#ifdef OTFP_HAVE_AVX2_KERNELS
-  static const bool cpu = __builtin_cpu_supports("avx2");
-  const char* env = std::getenv("OTFP_NEIGHBOR_KERNELS");
-  return cpu && !(env && std::string(env) == "generic");
-#else
-  return false;
-#endif
-}
-
 std::size_t box_candidates(bool avx2, const double* x, const double* y, const double* z, std::uint32_t b,
                            std::uint32_t e, const double shift[3], const double lo[3], const double hi[3],
                            double r2max, double* g2, std::uint32_t* out) {
@@ -202,7 +191,7 @@ void NeighborList::build(const std::vector<Vec3>& x, const std::vector<double>& 
   std::vector<Scratch> scratch(static_cast<std::size_t>(nthreads));
   std::vector<std::uint32_t> counts(n, 0);
   const Periodicity& per = per_;
-  const bool avx2 = neighbor_kernels::use_avx2();
+  const bool avx2 = detail::use_avx2();  // the instruction-set switch (src/isa.hpp)
   const std::uint32_t* items_p = items.data();
   const double* sr2 = sorted_r2.data();
   // ceil(R_p / h) cells reach every point within R_p; the slack absorbs round-off in R_p / h.

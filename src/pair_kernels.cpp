@@ -1,5 +1,8 @@
-// Run-time dispatch between the generic and the AVX2/FMA build of the pair kernels.
+// Run-time dispatch between the generic and the AVX2/FMA build of the pair
+// kernels, as the instruction-set switch (src/isa.hpp) says.
 #include "pair_kernels.hpp"
+
+#include "isa.hpp"
 
 namespace otfp::detail {
 
@@ -18,26 +21,10 @@ void gather_rows(std::size_t, std::size_t, const std::uint32_t*, const std::uint
 }  // namespace avx2
 #endif
 
-namespace {
-bool cpu_has_avx2() {
-#ifdef OTFP_HAVE_AVX2_KERNELS
-  static const bool yes = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
-  return yes;
-#else
-  return false;
-#endif
-}
-KernelIsa g_forced = KernelIsa::Auto;
-bool use_avx2() { return g_forced != KernelIsa::Generic && cpu_has_avx2(); }
-}  // namespace
-
-const char* kernel_isa() { return use_avx2() ? "avx2+fma" : "generic"; }
-void set_kernel_isa(KernelIsa isa) { g_forced = isa; }
-
 void density_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, const std::uint32_t* indices,
                   const BlobArrays& b, const MinimumImage& mi, double* rho, double* gx, double* gy, double* gz) {
 #ifdef OTFP_HAVE_AVX2_KERNELS
-  if (use_avx2()) return avx2::density_rows(r0, r1, offsets, indices, b, mi, rho, gx, gy, gz);
+  if (use_avx2_fma()) return avx2::density_rows(r0, r1, offsets, indices, b, mi, rho, gx, gy, gz);
 #endif
   generic::density_rows(r0, r1, offsets, indices, b, mi, rho, gx, gy, gz);
 }
@@ -46,7 +33,7 @@ void gather_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, c
                  const BlobArrays& b, const double* xyza, const MinimumImage& mi, double* sx, double* sy, double* sz,
                  double* wsum, double* wr2) {
 #ifdef OTFP_HAVE_AVX2_KERNELS
-  if (use_avx2()) return avx2::gather_rows(r0, r1, offsets, indices, b, xyza, mi, sx, sy, sz, wsum, wr2);
+  if (use_avx2_fma()) return avx2::gather_rows(r0, r1, offsets, indices, b, xyza, mi, sx, sy, sz, wsum, wr2);
 #endif
   generic::gather_rows(r0, r1, offsets, indices, b, xyza, mi, sx, sy, sz, wsum, wr2);
 }

@@ -2,9 +2,10 @@
 // The two pair sweeps of the exact gradient of (28) over a neighbour list, on
 // packed per-particle records so that a neighbour costs one 32-byte load
 // instead of one gather per field. On x86-64 a hand-vectorised AVX2/FMA build
-// (pair_kernels_avx2.cpp) is picked at run time, so the library needs no
-// -march flag (docs/method_notes.md#solver-facts: no -march=native against
-// Debian's Ceres); elsewhere the portable build (pair_kernels_generic.cpp).
+// (pair_kernels_avx2.cpp) is picked at run time by the instruction-set switch
+// (src/isa.hpp), so the library needs no -march flag
+// (docs/method_notes.md#solver-facts: no -march=native against Debian's
+// Ceres); elsewhere the portable build (pair_kernels_generic.cpp).
 // Both evaluate the same exp polynomial (in another order) and agree to
 // round-off; each sums a row in a fixed order, whatever the thread count.
 #include <cstddef>
@@ -38,14 +39,6 @@ void density_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, 
 void gather_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, const std::uint32_t* indices,
                  const BlobArrays& b, const double* xyza, const MinimumImage& mi, double* sx, double* sy, double* sz,
                  double* wsum, double* wr2);
-
-// Kernel builds: Auto picks AVX2/FMA when the CPU has both, else Generic.
-enum class KernelIsa { Auto, Generic, Avx2 };
-// "avx2+fma" or "generic": which kernel build runs now.
-const char* kernel_isa();
-// Tests and benchmarks: force a build (Avx2 falls back to Generic where the
-// CPU or the compiler lacks it). Not thread-safe; call between evaluations.
-void set_kernel_isa(KernelIsa isa);
 
 // A 32-byte aligned view into a vector of doubles sized for n records of 4
 // (the vector's own storage is only 16-byte aligned).

@@ -11,7 +11,7 @@
 #include "otfp/functional.hpp"
 #include "otfp/geometry.hpp"
 #include "test_support.hpp"
-#include "../src/pair_kernels.hpp"  // internal: to run each kernel build
+#include "../src/isa.hpp"  // internal: to run each kernel build
 
 using namespace otfp;
 using otfp::testing::central_difference;
@@ -428,9 +428,22 @@ TEST(PairKernels, EachBuildMatchesAllPairs) {
 TEST(PairKernels, ReportsTheBuildThatRuns) {
   detail::set_kernel_isa(detail::KernelIsa::Generic);
   EXPECT_STREQ(detail::kernel_isa(), "generic");
+  EXPECT_FALSE(detail::use_avx2());
+  EXPECT_FALSE(detail::use_avx2_fma());
   detail::set_kernel_isa(detail::KernelIsa::Auto);
 #if defined(__x86_64__)
-  const bool cpu = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
-  EXPECT_STREQ(detail::kernel_isa(), cpu ? "avx2+fma" : "generic");
+  const bool avx2 = __builtin_cpu_supports("avx2"), fma = avx2 && __builtin_cpu_supports("fma");
+  EXPECT_STREQ(detail::kernel_isa(), fma ? "avx2+fma" : avx2 ? "avx2" : "generic");
+  EXPECT_EQ(detail::use_avx2(), avx2);
+  EXPECT_EQ(detail::use_avx2_fma(), fma);
 #endif
+}
+
+// OTFP_NEIGHBOR_KERNELS=generic, read once at the first kernel call, forces
+// the portable build of every kernel; other values leave the CPU's choice.
+TEST(PairKernels, EnvironmentOverride) {
+  EXPECT_EQ(detail::kernel_isa_from_env("generic"), detail::KernelIsa::Generic);
+  EXPECT_EQ(detail::kernel_isa_from_env(nullptr), detail::KernelIsa::Auto);
+  EXPECT_EQ(detail::kernel_isa_from_env(""), detail::KernelIsa::Auto);
+  EXPECT_EQ(detail::kernel_isa_from_env("avx2"), detail::KernelIsa::Auto);
 }

@@ -15,6 +15,7 @@
 #include "otfp/geometry.hpp"
 #include "otfp/neighbor_list.hpp"
 #include "test_support.hpp"
+#include "../src/isa.hpp"  // internal: to run each kernel build
 
 using namespace otfp;
 using otfp::testing::random_cloud;
@@ -51,16 +52,16 @@ PairSet brute_pairs(const NeighborList& nl, const std::vector<Vec3>& x, const st
   return out;
 }
 
-// Builds with the given OpenMP thread count and neighbour kernels ("" = the default: AVX2 where the CPU has it).
+// Builds with the given OpenMP thread count and neighbour kernels ("" = the
+// default: AVX2 where the CPU has it; "generic": the portable build).
 NeighborList build_with(const std::vector<Vec3>& x, const std::vector<double>& s, const Periodicity& per,
                         int threads, const std::string& kernels = "", NeighborOptions o = {}) {
   const int before = omp_get_max_threads();
   omp_set_num_threads(threads);
-  if (kernels.empty()) unsetenv("OTFP_NEIGHBOR_KERNELS");
-  else setenv("OTFP_NEIGHBOR_KERNELS", kernels.c_str(), 1);
+  detail::set_kernel_isa(kernels == "generic" ? detail::KernelIsa::Generic : detail::KernelIsa::Auto);
   NeighborList nl(o);
   nl.build(x, s, per);
-  unsetenv("OTFP_NEIGHBOR_KERNELS");
+  detail::set_kernel_isa(detail::KernelIsa::Auto);
   omp_set_num_threads(before);
   return nl;
 }

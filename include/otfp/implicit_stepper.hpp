@@ -105,6 +105,12 @@ class ImplicitStepper {
   bool solve(std::vector<Vec3>& x, std::vector<double>& s, const std::vector<double>& m, std::vector<History>& hist,
              double& dt1, double& dt2, double dt, StepSummary& summary);
   Vec3 admissible_start(const Vec3& from, const Vec3& to) const;
+  // The local error estimates of a solved step from x, s to x_new, s_new
+  // (Milne's device), into summary's error fields.
+  void estimate_local_error(const std::vector<Vec3>& x, const std::vector<double>& s,
+                            const std::vector<Vec3>& x_new, const std::vector<double>& s_new,
+                            const std::vector<double>& m, const std::vector<History>& hist, double dt, double dt1,
+                            double dt2, StepSummary& summary) const;
   double density_error_estimate(const std::vector<Vec3>& x_new, const std::vector<double>& s_new,
                                 const std::vector<double>& m, const std::vector<Vec3>& ex,
                                 const std::vector<double>& es, const std::vector<char>& has, double factor) const;

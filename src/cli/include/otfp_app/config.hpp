@@ -3,9 +3,9 @@
 // typed form, and parsing with --set overrides. Every rejected value raises
 // ConfigError with the message "<key> = <value>: <rule>" (exit code 2).
 //
-// One table in config.cpp lists every key (path, type, member, choices, range
-// rule); parsing, validation, to_toml, config_to_json and schema() iterate
-// it. A key's default is the in-class default of its member below, and where
+// One table in config_table.cpp lists every key (path, type, member,
+// choices, range rule); parsing, validation, to_toml, config_to_json and
+// schema() iterate it. A key's default is the in-class default of its member below, and where
 // the key sets a library option, that default is the library's own
 // (ImplicitOptions{}, ExplicitOptions{}, MinimizerOptions{}).
 #include <cstdint>

@@ -1,0 +1,135 @@
+// The objective of one implicit step in scaled unknowns (src/step_objective.hpp).
+#include "step_objective.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+
+namespace otfp::detail {
+
+namespace {
+
+// The fold phi of the widths under the bound S (step_objective.hpp).
+constexpr double kWidthFold = 0.25;
+double fold(double v) { return v <= -kWidthFold ? v : -(v - kWidthFold) * (v - kWidthFold) / (4.0 * kWidthFold); }
+double fold_slope(double v) { return v <= -kWidthFold ? 1.0 : -(v - kWidthFold) / (2.0 * kWidthFold); }
+double fold_inverse(double t) {  // the branch v <= d, for t <= 0
+  return t <= -kWidthFold ? t : kWidthFold - std::sqrt(-4.0 * kWidthFold * t);
+}
+
+}  // namespace
+
+StepObjective::StepObjective(Functional& f, const ExternalPotential& ext, const std::vector<Vec3>& x_anchor,
+                             const std::vector<double>& s_anchor, const std::vector<double>& m, double dt,
+                             bool widths, const std::vector<double>& weights, double s_max)
+    : f_(f), ext_(ext), s_ref_(s_anchor), m_(m), dim_(f.dim()), widths_(widths), n_(x_anchor.size()),
+      s_max_(widths ? s_max : 0.0) {
+  const double c_w = f.transport().c_w();
+  c_w_ = c_w;
+  scale_x_.resize(n_);
+  scale_s_.resize(widths ? n_ : 0);
+  disp_x_.resize(n_);
+  disp_s_.resize(widths ? n_ : 0);
+  for (std::size_t p = 0; p < n_; ++p) {
+    const double am = weights.empty() ? m[p] : weights[p] * m[p];
+    scale_x_[p] = std::sqrt(am / dt);
+    if (widths) scale_s_[p] = s_anchor[p] * std::sqrt(c_w * am / dt);
+    disp_x_[p] = dt / am;
+    if (widths) disp_s_[p] = dt / (c_w * am);
+  }
+  if (s_max_ > 0.0) {
+    scale_b_.resize(n_);
+    u_ref_.resize(n_);
+    for (std::size_t p = 0; p < n_; ++p) {
+      require(s_anchor[p] <= s_max_, "max_width_factor", s_max_,
+              "x nominal_width (the bound, shown) must not be below a width at the start of a step (found " +
+                  std::to_string(s_anchor[p]) + ")");
+      u_ref_[p] = fold_inverse(std::log(s_anchor[p] / s_max_));
+      scale_b_[p] = scale_s_[p] * std::max(fold_slope(u_ref_[p]), 0.5);
+    }
+  }
+  x_ = x_anchor;
+  s_ = s_anchor;
+}
+
+void StepObjective::pack(const std::vector<Vec3>& x, const std::vector<double>& s, double* z) const {
+  for (std::size_t p = 0; p < n_; ++p) {
+    for (int k = 0; k < dim_; ++k) z[p * dim_ + k] = scale_x_[p] * x[p][k];
+    if (widths_) z[n_ * dim_ + p] = width_unknown(p, s[p]);
+  }
+}
+
+void StepObjective::unpack(const double* z, std::vector<Vec3>& x, std::vector<double>& s) const {
+  for (std::size_t p = 0; p < n_; ++p) {
+    for (int k = 0; k < dim_; ++k) x[p][k] = z[p * dim_ + k] / scale_x_[p];
+    if (widths_) s[p] = width_of(p, z[n_ * dim_ + p]);
+  }
+}
+
+bool StepObjective::evaluate(const double* z, double* value, double* gradient) {
+  unpack(z, x_, s_);
+  for (std::size_t p = 0; p < n_; ++p)
+    if (!x_[p].allFinite() || !std::isfinite(s_[p]) || !(s_[p] > 0.0)) return false;
+  parts_ = f_.evaluate(x_, s_, gradient ? &g_ : nullptr);
+  double ext = 0.0;
+  if (ext_) {
+    for (std::size_t p = 0; p < n_; ++p) {
+      Vec3 gu = Vec3::Zero();
+      ext += m_[p] * ext_(x_[p], gradient ? &gu : nullptr);
+      if (gradient) g_.x[p] += m_[p] * gu;
+    }
+    parts_.barrier += ext;
+  }
+  *value = parts_.total();
+  if (!std::isfinite(*value)) return false;
+  if (gradient) {
+    for (std::size_t p = 0; p < n_; ++p) {
+      for (int k = 0; k < dim_; ++k) gradient[p * dim_ + k] = g_.x[p][k] / scale_x_[p];
+      if (widths_)
+        gradient[n_ * dim_ + p] =
+            s_max_ > 0.0 ? g_.s[p] * s_[p] * fold_slope(u_ref_[p] + z[n_ * dim_ + p] / scale_b_[p]) / scale_b_[p]
+                         : g_.s[p] * s_[p] / scale_s_[p];
+    }
+    for (std::size_t i = 0; i < num_variables(); ++i)
+      if (!std::isfinite(gradient[i])) return false;
+  }
+  return true;
+}
+
+double StepObjective::stopping_measure(const double* z, const double* gradient) const {
+  double worst = 0.0, sum = 0.0, mass = 0.0;
+  for (std::size_t p = 0; p < n_; ++p) {
+    double d2 = 0.0;
+    for (int k = 0; k < dim_; ++k) {
+      const double d = gradient[p * dim_ + k] * scale_x_[p] * disp_x_[p];
+      worst = std::max(worst, std::abs(d));
+      d2 += d * d;
+    }
+    if (widths_) {
+      const double s = width_of(p, z[n_ * dim_ + p]);
+      const double scale = s_max_ > 0.0 ? scale_b_[p] : scale_s_[p];
+      const double d = gradient[n_ * dim_ + p] * scale / s * disp_s_[p];
+      worst = std::max(worst, std::abs(d));
+      d2 += c_w_ * d * d;
+    }
+    sum += m_[p] * d2;
+    mass += m_[p];
+  }
+  if (!(max_norm_factor_ > 0.0)) return worst;
+  const double rms = mass > 0.0 ? std::sqrt(sum / mass) : 0.0;
+  // A NaN (an overflowing scale) must never read as converged.
+  if (!std::isfinite(rms)) return std::numeric_limits<double>::infinity();
+  return std::max(rms, worst / max_norm_factor_);
+}
+
+double StepObjective::width_of(std::size_t p, double zs) const {
+  if (!(s_max_ > 0.0)) return s_ref_[p] * std::exp(zs / scale_s_[p]);
+  return std::min(s_max_ * std::exp(fold(u_ref_[p] + zs / scale_b_[p])), s_max_);
+}
+double StepObjective::width_unknown(std::size_t p, double s) const {
+  if (!(s_max_ > 0.0)) return scale_s_[p] * std::log(s / s_ref_[p]);
+  return scale_b_[p] * (fold_inverse(std::min(std::log(s / s_max_), 0.0)) - u_ref_[p]);
+}
+
+}  // namespace otfp::detail
