@@ -203,13 +203,13 @@ void read_key(const toml::table& root, const Field& f, Config& c) {
 // reservoir, outlets that reach the nearest particles, the true spacing).
 void apply_treatment_preset(Config& c) {
   TreatmentSection& t = c.treatment;
-  const bool papers = t.preset == "papers";
-  t.no_flux = papers ? "barrier" : "images";
-  t.dirichlet = papers ? "layer" : "reservoir";
-  t.reservoir_profile = papers ? "uniform" : "odd";
-  t.neumann_outflow = papers ? "layer" : "nearest";
-  t.stranded = "keep";
-  c.particles.spacing_rule = papers && c.run.dim == 3 ? "sphere_radius" : "cube";
+  const TreatmentOptions o = treatment_preset(treatment_preset_from_string(t.preset), c.run.dim);
+  t.no_flux = to_string(o.no_flux);
+  t.dirichlet = to_string(o.dirichlet);
+  t.reservoir_profile = to_string(o.reservoir_profile);
+  t.neumann_outflow = o.neumann_outflow == NeumannOutflow::NearestParticles ? "nearest" : "layer";
+  t.stranded = o.absorb_stranded ? "absorb" : "keep";
+  c.particles.spacing_rule = to_string(o.spacing_rule);
 }
 
 // `base`: the directory relative paths are taken from.
