@@ -418,6 +418,41 @@ class Cylinder final : public Domain {
 };
 
 // ---------------------------------------------------------------------------
+// Domains without a boundary: every point is interior, none is near a patch.
+
+BoundaryQuery no_boundary(const Vec3& x) {
+  BoundaryQuery q;
+  q.signed_distance = -std::numeric_limits<double>::infinity();
+  q.closest_point = x;
+  q.patch = -1;
+  return q;
+}
+
+// Unbounded space for free diffusion: no boundary, no patches. The box
+// [lo, hi] only serves an initial uniform fill, the spacing rule and the
+// reference volume.
+class FreeSpace final : public Domain {
+ public:
+  FreeSpace(int dim, const Vec3& lo, const Vec3& hi) : dim_(dim), box_{project(lo, dim), project(hi, dim)} {
+    check_dim(dim);
+    check_point(lo, "free space lo");
+    check_point(hi, "free space hi");
+  }
+  int dim() const override { return dim_; }
+  BoundaryQuery query(const Vec3& x) const override { return no_boundary(x); }
+  double volume() const override { return box_measure(box_, dim_); }
+  int num_patches() const override { return 0; }
+  double patch_area(int patch) const override {
+    throw InvalidArgument("patch = " + std::to_string(patch) + ": free space has no patches");
+  }
+  Aabb bounding_box() const override { return box_; }
+
+ private:
+  int dim_;
+  Aabb box_;
+};
+
+// ---------------------------------------------------------------------------
 // Periodic box
 
 class PeriodicBox final : public Domain {
@@ -434,13 +469,7 @@ class PeriodicBox final : public Domain {
 
   int dim() const override { return dim_; }
 
-  BoundaryQuery query(const Vec3& x) const override {
-    BoundaryQuery q;
-    q.signed_distance = -std::numeric_limits<double>::infinity();
-    q.closest_point = x;
-    q.patch = -1;
-    return q;
-  }
+  BoundaryQuery query(const Vec3& x) const override { return no_boundary(x); }
 
   double volume() const override { return box_measure(bounding_box(), dim_); }
   int num_patches() const override { return 0; }
@@ -502,5 +531,7 @@ DomainPtr make_cylinder(const Vec3& a, const Vec3& b, double radius) {
 DomainPtr make_periodic_box(int dim, const Vec3& lo, const Vec3& hi) {
   return std::make_shared<PeriodicBox>(dim, lo, hi);
 }
+
+DomainPtr make_free_space(int dim, const Vec3& lo, const Vec3& hi) { return std::make_shared<FreeSpace>(dim, lo, hi); }
 
 }  // namespace otfp

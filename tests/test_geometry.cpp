@@ -600,3 +600,21 @@ TEST(Csg, UnionOfOverlappingDiscs) {
   EXPECT_THROW(make_union(a, make_ball(3, Vec3::Zero(), 1.0)), InvalidArgument);
   EXPECT_THROW(make_union(a, make_periodic_box(2, Vec3(0, 0, 0), Vec3(1, 1, 0))), InvalidArgument);
 }
+
+// Free space: every point inside and far from any boundary, no patches; the
+// box only gives the volume of the spacing rule.
+TEST(FreeSpace, HasNoBoundaryAndTheBoxVolume) {
+  const otfp::DomainPtr d = otfp::make_free_space(2, otfp::Vec3(-1.0, 0.0, 5.0), otfp::Vec3(3.0, 0.5, 9.0));
+  EXPECT_EQ(d->dim(), 2);
+  EXPECT_EQ(d->num_patches(), 0);
+  EXPECT_DOUBLE_EQ(d->volume(), 4.0 * 0.5);  // z is not an axis in 2-D
+  for (const otfp::Vec3& x : {otfp::Vec3(0.0, 0.0, 0.0), otfp::Vec3(1e6, -1e6, 0.0)}) {
+    const otfp::BoundaryQuery q = d->query(x);
+    EXPECT_EQ(q.signed_distance, -std::numeric_limits<double>::infinity());
+    EXPECT_EQ(q.patch, -1);
+    EXPECT_TRUE(d->contains(x));
+  }
+  EXPECT_EQ(d->bounding_box().hi[2], 0.0);
+  EXPECT_THROW(d->patch_area(0), otfp::InvalidArgument);
+  EXPECT_THROW(otfp::make_free_space(4, otfp::Vec3::Zero(), otfp::Vec3::Ones()), otfp::InvalidArgument);
+}

@@ -108,6 +108,9 @@ DomainPtr make_box(int dim, const Vec3& lo, const Vec3& hi);
 DomainPtr make_cylinder(const Vec3& a, const Vec3& b, double radius);
 // Periodic box [lo, hi) in d dimensions; no boundary and no patches.
 DomainPtr make_periodic_box(int dim, const Vec3& lo, const Vec3& hi);
+// Unbounded space (free diffusion): no boundary and no patches; the box
+// [lo, hi] serves an initial uniform fill and the spacing rule (its volume).
+DomainPtr make_free_space(int dim, const Vec3& lo, const Vec3& hi);
 
 // A sub-region of one patch of a base domain: the boundary points of patch
 // `base_patch` within Euclidean distance `radius` of `center` (a point on that

@@ -201,6 +201,10 @@ void bind_particles_geometry(py::module_& m) {
   m.def("make_periodic_box",
         [](int dim, const Vec3& lo, const Vec3& hi) { return mutable_domain(make_periodic_box(dim, lo, hi)); },
         py::arg("dim"), py::arg("lo"), py::arg("hi"));
+  m.def("make_free_space",
+        [](int dim, const Vec3& lo, const Vec3& hi) { return mutable_domain(make_free_space(dim, lo, hi)); },
+        py::arg("dim"), py::arg("lo"), py::arg("hi"),
+        "Unbounded space: no boundary or patches; [lo, hi] serves the fill and the spacing rule.");
   m.def("make_union", [](const PyDomain& a, const PyDomain& b) { return mutable_domain(make_union(a, b)); });
   m.def("make_difference", [](const PyDomain& a, const PyDomain& b) { return mutable_domain(make_difference(a, b)); },
         "a minus b (e.g. an obstacle)");

@@ -95,23 +95,11 @@ struct SweepSignals {
   SweepSignals& operator=(const SweepSignals&) = delete;
 };
 
-// Control characters of user text as escapes (one-line messages).
-std::string escaped(const std::string& s) {
-  std::string out;
-  for (const char ch : s) {
-    const auto u = static_cast<unsigned char>(ch);
-    if (u < 0x20 || u == 0x7f)
-      out += fmt::format("\\x{:02x}", u);
-    else
-      out += ch;
-  }
-  return out;
-}
 
 // One line: control characters anywhere in the message (a path with a
 // newline, say) are escaped.
 int error(std::ostream& err, const std::string& message, int code) {
-  err << "otfp: error: " << escaped(message) << "\n";
+  err << "otfp: error: " << one_line(message) << "\n";
   return code;
 }
 
@@ -250,7 +238,7 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
         int finished = 0;
         for (const SweepRow& row : r.rows) finished += row.status == "completed" ? 1 : 0;
         err << "otfp: "
-            << escaped(fmt::format("sweep interrupted by a signal: {} of its runs completed -> {}/runs.csv", finished,
+            << one_line(fmt::format("sweep interrupted by a signal: {} of its runs completed -> {}/runs.csv", finished,
                                    out_dir))
             << "\n";
         return kExitInterrupted;
@@ -288,7 +276,7 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
         if (std::find(keys.begin(), keys.end(), key) == keys.end()) {
           std::string list;
           for (const std::string& k : keys) list += (list.empty() ? "" : ", ") + k;
-          return error(err, "--set " + escaped(set) + ": cannot change on --resume (only " + list + ")", kUsage);
+          return error(err, "--set " + one_line(set) + ": cannot change on --resume (only " + list + ")", kUsage);
         }
       }
       config = (std::filesystem::path(resume_dir) / "config.toml").string();
@@ -312,7 +300,7 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
     if (const char* sweep_pid = std::getenv("OTFP_SWEEP_PID")) {
       ::prctl(PR_SET_PDEATHSIG, SIGTERM);
       if (std::to_string(::getppid()) != sweep_pid) {
-        err << "otfp: the sweep that started this run (pid " << escaped(sweep_pid) << ") is gone; not started\n";
+        err << "otfp: the sweep that started this run (pid " << one_line(sweep_pid) << ") is gone; not started\n";
         return kExitInterrupted;
       }
     }
@@ -343,7 +331,7 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   fmt::format_to_n(g_kill_message, sizeof g_kill_message - 1,
                    "otfp: stopped by a second signal during a step; continue from the last checkpoint with: "
                    "otfp run --resume {}\n",
-                   escaped(out_dir));
+                   one_line(out_dir));
   RunResult r;
   {
     const StopSignals signals;
@@ -353,16 +341,16 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   if (r.nothing_to_do) {
     if (!quiet)
       err << fmt::format("otfp: {} is already at step {}, t = {}: nothing to do (extend it with --set run.t_end=...)\n",
-                         escaped(out_dir), r.last.step, r.last.t);
+                         one_line(out_dir), r.last.step, r.last.t);
     return 0;
   }
   if (r.exit_code == kExitInterrupted) {
     // Asked for (SIGINT/SIGTERM): a notice, not an error.
-    err << "otfp: " << escaped(r.error) << "\n";
+    err << "otfp: " << one_line(r.error) << "\n";
     return kExitInterrupted;
   }
   if (r.exit_code == kExitRefused)
-    return error(err, "--resume = \"" + escaped(out_dir) + "\": " + r.error + " (nothing in it was changed)", kUsage);
+    return error(err, "--resume = \"" + one_line(out_dir) + "\": " + r.error + " (nothing in it was changed)", kUsage);
   if (r.exit_code != 0)
     return error(err,
                  r.rows ? fmt::format("{} (the files in {} are complete up to step {}, t = {})", r.error, out_dir,
@@ -379,7 +367,7 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
       blob = fmt::format(", M_rho/M_inf = {:.4f}", r.summary["final"]["mass_blob_ratio"].get<double>());
     err << fmt::format("otfp: {} steps to t = {}: n = {}, M/M_inf = {:.4f}{}, {:.1f} s -> {}\n", r.last.step, r.last.t,
                        r.last.n_particles, r.last.mass_ratio, blob, r.summary.value("wall_seconds", 0.0),
-                       escaped(out_dir));
+                       one_line(out_dir));
   }
   return 0;
 }

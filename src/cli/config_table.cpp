@@ -19,11 +19,10 @@
 
 namespace otfp::app {
 
-namespace {
 // A message is one line whatever it echoes (a patch name "a\nb" given in the
 // file, a sub-patch name inside a list of patches): control characters become
 // \xHH. Idempotent on text already escaped (it holds none).
-std::string one_line(std::string s) {
+std::string one_line(const std::string& s) {
   std::string out;
   for (const char ch : s) {
     const auto u = static_cast<unsigned char>(ch);
@@ -34,7 +33,6 @@ std::string one_line(std::string s) {
   }
   return out;
 }
-}  // namespace
 
 ConfigError::ConfigError(const std::string& key, const std::string& value, const std::string& rule)
     : std::runtime_error(one_line(key + " = " + value + ": " + rule)), key_(key) {}

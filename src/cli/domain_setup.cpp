@@ -21,35 +21,6 @@ Vec3 project(const Vec3& x, int dim) {
 
 std::string shown(const Vec3& v) { return fmt::format("[{}, {}, {}]", v[0], v[1], v[2]); }
 
-// Unbounded space for free diffusion: no boundary, no patches. The box
-// [lo, hi] only serves the initial uniform fill and the spacing rule.
-class FreeSpace final : public Domain {
- public:
-  FreeSpace(int dim, const Vec3& lo, const Vec3& hi) : dim_(dim), box_{project(lo, dim), project(hi, dim)} {}
-  int dim() const override { return dim_; }
-  BoundaryQuery query(const Vec3& x) const override {
-    BoundaryQuery q;
-    q.signed_distance = -std::numeric_limits<double>::infinity();
-    q.closest_point = x;
-    q.patch = -1;
-    return q;
-  }
-  double volume() const override {
-    double v = 1.0;
-    for (int k = 0; k < dim_; ++k) v *= box_.hi[k] - box_.lo[k];
-    return v;
-  }
-  int num_patches() const override { return 0; }
-  double patch_area(int patch) const override {
-    throw InvalidArgument("patch = " + std::to_string(patch) + ": free space has no patches");
-  }
-  Aabb bounding_box() const override { return box_; }
-
- private:
-  int dim_;
-  Aabb box_;
-};
-
 double box_mean_square(const Vec3& lo, const Vec3& hi, int dim, const Vec3& c) {
   double s = 0.0;
   for (int k = 0; k < dim; ++k) {
@@ -253,7 +224,7 @@ BuiltDomain build_domain(const Config& c) {
       } else if (d.type == "periodic_box") {
         base = make_periodic_box(dim, lo, hi);
       } else {
-        base = std::make_shared<FreeSpace>(dim, lo, hi);
+        base = make_free_space(dim, lo, hi);
         out.free_space = true;
       }
       out.centroid = 0.5 * (lo + hi);

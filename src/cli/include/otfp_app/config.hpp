@@ -26,6 +26,9 @@
 
 namespace otfp::app {
 
+// User text in a one-line message: control characters as \xHH.
+std::string one_line(const std::string& s);
+
 class ConfigError : public std::runtime_error {
  public:
   ConfigError(const std::string& key, const std::string& value, const std::string& rule);
