@@ -615,6 +615,15 @@ SimulationStep Simulation::advance_adaptive_impl(double t_limit) {
   }
 }
 
+std::string to_string(RunEnd e) {
+  switch (e) {
+    case RunEnd::Completed: return "completed";
+    case RunEnd::MaxSteps: return "max_steps";
+    case RunEnd::Stopped: return "stopped";
+  }
+  return "unknown";
+}
+
 void RunControl::validate() const {
   require(std::isfinite(t_end), "t_end", t_end, "must be finite");
   require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");

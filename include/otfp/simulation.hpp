@@ -164,6 +164,7 @@ enum class RunEnd {
   MaxSteps,   // stopped at max_steps before t_end
   Stopped     // the stop predicate ended it before either
 };
+std::string to_string(RunEnd e);  // "completed" | "max_steps" | "stopped"
 
 class Simulation {
  public:

@@ -18,6 +18,25 @@ struct StopRequested {};
 }  // namespace
 
 void bind_simulation(py::module_& m) {
+  py::enum_<RunEnd> run_end(m, "RunEnd", "How Simulation.run ended.");
+  run_end.value("Completed", RunEnd::Completed).value("MaxSteps", RunEnd::MaxSteps).value("Stopped", RunEnd::Stopped);
+  run_end.attr("__str__") =
+      py::cpp_function([](RunEnd v) { return to_string(v); }, py::name("__str__"), py::is_method(run_end));
+  Options<RunControl>(m, "RunControl", "What Simulation.run steps to and when it stops (the command line's loop).")
+      .field("t_end", &RunControl::t_end, "end of the run")
+      .field("dt", &RunControl::dt, "fixed steps: the step of a new grid; adaptive: the first try")
+      .field("adaptive", &RunControl::adaptive, "advance_adaptive to t_end instead of the grid")
+      .field("max_steps", &RunControl::max_steps, "stop after this step number (0: no limit)")
+      .field("checkpoint_interval", &RunControl::checkpoint_interval, "on_checkpoint every this many steps")
+      .validated()
+      .done();
+  py::class_<TimeGrid>(m, "TimeGrid", "The grid of fixed steps: t_k = t_origin + (k - k_origin) dt, t_end at k_end.")
+      .def_readonly("t_origin", &TimeGrid::t_origin)
+      .def_readonly("k_origin", &TimeGrid::k_origin)
+      .def_readonly("dt", &TimeGrid::dt)
+      .def_readonly("k_end", &TimeGrid::k_end)
+      .def_readonly("t_end", &TimeGrid::t_end);
+
   // ---- Simulation (with its lock: every method waits for a step running in
   // another thread; the observer of run_until may use its own simulation)
   py::class_<PySimulation>(m, "Simulation", "Algorithm 1: advection, source, diffusion, projection, ledger.")
@@ -86,6 +105,55 @@ void bind_simulation(py::module_& m) {
            py::arg("t_end"), py::arg("dt"), py::arg("observer") = py::none(), py::arg("adaptive") = false,
            "Steps to t_end (equal steps of at most dt, or adaptive). observer(sim, step) sees every step; "
            "returning False stops after that step. Returns True when t_end was reached.")
+      .def("run",
+           [](PySimulation& s, const RunControl& control, py::object observer, py::object on_checkpoint) {
+             auto held = s.lock.hold();
+             RunControl c = control;
+             // observer(sim, step) after every step: False ends the run with that step.
+             if (!observer.is_none())
+               c.stop = [&observer, &s](const SimulationStep& step) {
+                 py::gil_scoped_acquire acquire;
+                 py::object r = observer(py::cast(s, py::return_value_policy::reference), py::cast(step));
+                 if (r.is_none()) return false;
+                 const bool is_bool = py::isinstance<py::bool_>(r) ||
+                                      py::isinstance(r, py::module_::import("numpy").attr("bool_"));
+                 if (!is_bool)
+                   throw py::type_error("observer returned " +
+                                        py::str(py::type::of(r).attr("__name__")).cast<std::string>() +
+                                        ": an observer must return None or True (go on) or False (stop after this "
+                                        "step)");
+                 return !r.cast<bool>();
+               };
+             struct Checkpoints : RunObserver {
+               py::object* call = nullptr;
+               PySimulation* sim = nullptr;
+               void on_step(const Simulation&, const SimulationStep&, bool) override {}
+               void on_checkpoint(const Simulation&) override {
+                 if (call->is_none()) return;
+                 py::gil_scoped_acquire acquire;
+                 (*call)(py::cast(*sim, py::return_value_policy::reference));
+               }
+             } checkpoints;
+             checkpoints.call = &on_checkpoint;
+             checkpoints.sim = &s;
+             py::gil_scoped_release release;
+             return s.object->run(c, &checkpoints);
+           },
+           py::arg("control"), py::arg("observer") = py::none(), py::arg("on_checkpoint") = py::none(),
+           "The time loop: fixed steps on the grid kept in checkpoints (time_grid), or adaptive. observer(sim, "
+           "step) sees every step and may return False to stop there; on_checkpoint(sim) is called at "
+           "control.checkpoint_interval and after the last step. Returns a RunEnd.")
+      .def("finished",
+           [](PySimulation& s, const RunControl& control) {
+             auto held = s.lock.hold();
+             return s.object->finished(control);
+           },
+           py::arg("control"), "run(control) would take no step.")
+      .def_property_readonly("time_grid",
+                             [](PySimulation& s) {
+                               auto held = s.lock.hold();
+                               return s.object->time_grid();
+                             })
       .def_property_readonly("time",
                              [](PySimulation& s) {
                                auto held = s.lock.hold();

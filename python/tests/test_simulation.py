@@ -51,6 +51,32 @@ def small_simulation():
     return sim
 
 
+def test_run_is_the_library_time_loop_and_resumes_on_its_grid(tmp_path):
+    """Simulation.run: the grid t_k = k dt, checkpoints at the cadence and at the end, a stop by the
+    observer, and a run continued from a checkpoint in another Simulation equal to one in one go."""
+    control = otfp.RunControl(t_end=0.01, dt=0.0025, checkpoint_interval=2)
+    whole = small_simulation()
+    seen, saved = [], []
+    assert whole.run(control, lambda s, step: seen.append((step.step, step.t_end)),
+                     lambda s: saved.append(s.step_count)) == otfp.RunEnd.Completed
+    assert seen == [(1, 0.0025), (2, 0.005), (3, 3 * 0.0025), (4, 0.01)]
+    assert saved == [2, 4]
+    assert whole.time_grid.k_end == 4 and whole.finished(control)
+
+    head = small_simulation()
+    assert str(head.run(control, lambda s, step: step.step < 3)) == "stopped"
+    path = str(tmp_path / "run.bin")
+    head.save_checkpoint(path)
+    tail = small_simulation()
+    tail.load_checkpoint(path)
+    assert tail.time_grid.dt == 0.0025
+    assert tail.run(control) == otfp.RunEnd.Completed
+    assert tail.time == 0.01
+    assert np.array_equal(tail.particles.positions, whole.particles.positions)
+    with pytest.raises(ValueError, match="dt = 0: must be finite and > 0"):
+        tail.run(otfp.RunControl(t_end=1.0, dt=0.0))
+
+
 def test_observer_sees_every_step_and_can_stop():
     sim = small_simulation()
     seen = []
