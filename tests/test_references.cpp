@@ -3,7 +3,7 @@
 // analytic functions, their state round trip), and what `otfp run` writes:
 // the cosine and lattice fills, the measured quantities (blob second moment,
 // mode amplitude) computed independently from particles_final.csv, the error
-// columns and statistics.
+// columns and statistics, and a resumed run's reference.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -475,5 +475,36 @@ TEST(ReferenceObjects, StateRoundTripGivesIdenticalRows) {
     } catch (const otfp::InvalidArgument& e) {
       EXPECT_NE(std::string(e.what()).find(state.begin()->first), std::string::npos) << e.what();
     }
+  }
+}
+
+// `otfp run` stopped and resumed (its checkpoint holds the reference's state):
+// series.csv and summary.json's reference are those of the run made at once,
+// for a reference of each kind.
+TEST(References, ResumedRunKeepsTheReference) {
+  const std::vector<std::pair<std::string, std::vector<std::string>>> runs = {
+      {"periodic_cosine.toml", {"run.max_steps=8", "particles.n_inf=256"}},
+      {"free_space_heat.toml", {"run.max_steps=8", "run.dim=2", "particles.n_inf=60"}},
+      {"box_mixed.toml", {"run.max_steps=6", "run.dt=0.05", "treatment.preset=papers"}},
+  };
+  for (const auto& [name, sets0] : runs) {
+    SCOPED_TRACE(name);
+    std::vector<std::string> sets = sets0;
+    sets.push_back("run.vtk_interval=0");
+    const fs::path full = fresh_dir("ref_resume_full"), cut = fresh_dir("ref_resume_cut");
+    const RunResult a = run_example(name, sets, full);
+    ASSERT_EQ(a.exit_code, 0) << a.error;
+    RunOptions o;
+    o.out_dir = cut;
+    o.stop_after_step = 3;
+    ASSERT_EQ(ConfiguredRun(parse_config_file(kExamples / name, sets)).run(o).exit_code, kExitInterrupted);
+    o.stop_after_step = 0;
+    o.resume = true;
+    const RunResult b = ConfiguredRun(parse_config_file(kExamples / name, sets)).run(o);
+    ASSERT_EQ(b.exit_code, 0) << b.error;
+    EXPECT_EQ(otfp::test::read_text(full / "series.csv"), otfp::test::read_text(cut / "series.csv"));
+    EXPECT_EQ(a.summary.at("reference").dump(), b.summary.at("reference").dump());
+    fs::remove_all(full);
+    fs::remove_all(cut);
   }
 }
