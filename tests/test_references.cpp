@@ -1,16 +1,25 @@
-// Analytic references written by `otfp run`: the cosine and lattice fills,
-// the measured quantities (blob second moment, mode amplitude) computed
-// independently from particles_final.csv, the error columns and statistics.
+// Analytic references: the library's objects (otfp/reference.hpp: error
+// statistics, the decay-rate fit, each reference's columns against the
+// analytic functions, their state round trip), and what `otfp run` writes:
+// the cosine and lattice fills, the measured quantities (blob second moment,
+// mode amplitude) computed independently from particles_final.csv, the error
+// columns and statistics, and a resumed run's reference.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <filesystem>
+#include <map>
+#include <memory>
 #include <numbers>
 #include <string>
+#include <utility>
+#include <variant>
 #include <vector>
 
 #include "app_test_support.hpp"
 #include "otfp/analytic.hpp"
+#include "otfp/diagnostics.hpp"
+#include "otfp/reference.hpp"
 #include "otfp_app/config.hpp"
 #include "otfp_app/simulation.hpp"
 
@@ -180,4 +189,322 @@ TEST(References, CosineModeNeedsPeriodicBoxAndCosineFill) {
   EXPECT_THROW(parse_config_file(kExamples / "periodic_cosine.toml", {"particles.fill_amplitude=1"}), ConfigError);
   EXPECT_THROW(parse_config_file(kExamples / "periodic_cosine.toml", {"particles.fill_count=10"}), ConfigError);
   EXPECT_THROW(parse_config_file(kExamples / "periodic_cosine.toml", {"particles.fill_amplitude=0"}), ConfigError);
+}
+
+// ---- The library's reference objects
+
+namespace {
+
+// Samples of a made-up run: measures, M_rho and particles that change with t.
+otfp::ReferenceSample sample_at(double t, otfp::ParticleSet& particles) {
+  for (std::size_t p = 0; p < particles.size(); ++p) {
+    // Spread about x = 0: the mode amplitude along x (k = 2 pi) is > 0 and falls.
+    const double q = static_cast<double>(p);
+    particles.positions()[p][0] = 0.03 * (q - 2.0) * (1.0 + 5.0 * t) + 0.01 * std::sin(3.0 * t + q);
+    particles.positions()[p][1] = 0.3 * static_cast<double>(p % 2) + 0.1 * t;
+    particles.widths()[p] = 0.05 * (1.0 + t);
+  }
+  otfp::ReferenceSample s;
+  s.t = t;
+  s.measures.mass_total = particles.total_mass();
+  s.measures.mass_inside = 0.8 * (1.0 - std::exp(-2.0 * t));
+  s.measures.polar_inertia = 0.3 * (1.0 - std::exp(-1.5 * t));
+  s.mass_blob = 0.75 * (1.0 - std::exp(-2.1 * t));
+  s.particles = &particles;
+  s.initial_mass = 1.0;
+  return s;
+}
+
+otfp::ParticleSet some_particles() {
+  otfp::ParticleSet ps(2);
+  for (int p = 0; p < 5; ++p) ps.add(otfp::Vec3::Zero(), 0.05, 0.2);
+  return ps;
+}
+
+// A setup every reference accepts: a slab box [0, 2] x [0, 1] held at x = 0,
+// the radius of a ball, a cosine mode of wavelength 1, constant implicit Euler steps.
+otfp::ReferenceSetup full_setup() {
+  otfp::ReferenceSetup s;
+  s.dim = 2;
+  s.kappa = 0.5;
+  s.t_end = 1.0;
+  s.center = otfp::Vec3(0.9, 0.4, 0.0);
+  s.M_inf = 1.0;
+  s.radius = 1.0;
+  s.length = 2.0;
+  s.J_inf = 0.4;
+  s.lo = otfp::Vec3::Zero();
+  s.hi = otfp::Vec3(2.0, 1.0, 0.0);
+  s.slab_axis = 0;
+  s.wavenumber = 2.0 * std::numbers::pi;
+  s.constant_dt = 0.01;
+  return s;
+}
+
+std::vector<std::pair<std::string, std::string>> summary_text(const otfp::Reference& ref) {
+  std::vector<std::pair<std::string, std::string>> out;
+  for (const otfp::ReferenceEntry& e : ref.summary())
+    out.emplace_back(e.key, std::visit([](auto v) { return std::to_string(v); }, e.value));
+  for (const otfp::ErrorStatistics& e : ref.statistics())
+    for (double v : e.state()) out.emplace_back(e.measured(), std::to_string(v));
+  return out;
+}
+
+}  // namespace
+
+// Three rows by hand: (t, measured, reference) = (0, 1, 1), (1, 3, 1),
+// (3, 0, 2) with scale 2 give errors 0, 1, -1; |error| integrates to
+// 1/2 (trapezoid) + 1 (exact across the sign change: two triangles of area 1/2).
+TEST(ReferenceObjects, ErrorStatisticsByHand) {
+  otfp::ErrorStatistics e("q", 2.0, "two");
+  EXPECT_FALSE(e.started());
+  EXPECT_EQ(e.add(0.0, 1.0, 1.0), 0.0);
+  EXPECT_EQ(e.add(1.0, 3.0, 1.0), 1.0);
+  EXPECT_EQ(e.add(3.0, 0.0, 2.0), -1.0);
+  EXPECT_TRUE(e.started());
+  EXPECT_EQ(e.measured(), "q");
+  EXPECT_EQ(e.scale_rule(), "two");
+  EXPECT_EQ(e.max_abs_error(), 1.0);
+  EXPECT_EQ(e.final_error(), -1.0);
+  EXPECT_EQ(e.l1_time_error(), 1.5);
+  EXPECT_EQ(e.mean_abs_error(), 0.5);
+  EXPECT_EQ(e.l1_norm(), 0.5 * (1 + 3) * 1 + 0.5 * (3 + 0) * 2);       // 5
+  EXPECT_EQ(e.l1_norm_reference(), 0.5 * (1 + 1) * 1 + 0.5 * (1 + 2) * 2);  // 4
+  EXPECT_EQ(e.l1_norm_relative_error(), 0.25);
+  EXPECT_EQ(e.t_first(), 0.0);
+  EXPECT_EQ(e.t_last(), 3.0);
+  // One row: no time, mean 0; no reference integral: relative error 0.
+  otfp::ErrorStatistics one("q", 1.0, "");
+  one.add(2.0, 0.0, 0.0);
+  EXPECT_EQ(one.mean_abs_error(), 0.0);
+  EXPECT_EQ(one.l1_norm_relative_error(), 0.0);
+  // The state continues the sums exactly.
+  otfp::ErrorStatistics copy("q", 1.0, "two");
+  copy.load_state(e.state());
+  EXPECT_EQ(copy.scale(), 2.0);
+  EXPECT_EQ(copy.add(4.5, 0.7, 0.1), e.add(4.5, 0.7, 0.1));
+  EXPECT_EQ(copy.state(), e.state());
+  EXPECT_THROW(copy.load_state({1.0, 2.0}), otfp::InvalidArgument);
+}
+
+// Exact exponential data give their rate back; too few samples give NaN.
+TEST(ReferenceObjects, DecayRateFitRecoversAKnownRate) {
+  std::vector<double> t, a;
+  for (int i = 0; i <= 40; ++i) {
+    t.push_back(0.0125 * i);
+    a.push_back(0.7 * std::exp(-3.25 * t.back()));
+  }
+  EXPECT_NEAR(otfp::decay_rate_fit(t, a), 3.25, 1e-12);
+  EXPECT_TRUE(std::isnan(otfp::decay_rate_fit({0.0, 1.0}, {1.0, 0.5})));
+  EXPECT_NEAR(otfp::decay_rate_fit({0.0, 1.0, 2.0}, {1.0, 0.5, 0.25}), std::log(2.0), 1e-15);
+  EXPECT_THROW(otfp::decay_rate_fit({0.0, 1.0, 2.0}, {1.0, 0.5}), otfp::InvalidArgument);
+  EXPECT_THROW(otfp::decay_rate_fit({0.0, 1.0, 2.0}, {1.0, 0.0, 0.5}), otfp::InvalidArgument);
+}
+
+TEST(ReferenceObjects, RegisteredNames) {
+  EXPECT_EQ(otfp::reference_names(), (std::vector<std::string>{"crank_sphere", "crank_slab", "free_space", "cosine_mode"}));
+  for (const std::string& name : otfp::reference_names())
+    EXPECT_EQ(otfp::make_reference(name, full_setup())->name(), name);
+  EXPECT_THROW(otfp::make_reference("crank_cylinder", full_setup()), otfp::InvalidArgument);
+  otfp::ReferenceSetup bad = full_setup();
+  bad.radius = 0.0;
+  EXPECT_THROW(otfp::make_reference("crank_sphere", bad), otfp::InvalidArgument);
+  bad = full_setup();
+  bad.slab_axis = -1;  // a polar inertia without its box
+  EXPECT_THROW(otfp::make_reference("crank_slab", bad), otfp::InvalidArgument);
+  bad.J_inf.reset();
+  EXPECT_EQ(otfp::make_reference("crank_slab", bad)->columns().size(), 2u);
+  bad = full_setup();
+  bad.wavenumber = 0.0;
+  EXPECT_THROW(otfp::make_reference("cosine_mode", bad), otfp::InvalidArgument);
+}
+
+// Crank's sphere and slab: the columns are analytic.hpp's curves, the errors
+// (measured - reference) / scale, and error_mass_blob M_rho / M_inf - M_ref / M_inf.
+TEST(ReferenceObjects, CrankColumnsAreTheAnalyticCurves) {
+  using namespace otfp::analytic;
+  otfp::ParticleSet ps = some_particles();
+  for (const bool sphere : {true, false}) {
+    SCOPED_TRACE(sphere ? "sphere" : "slab");
+    otfp::ReferenceSetup setup = full_setup();
+    setup.M_inf = 2.0;
+    const auto ref = otfp::make_reference(sphere ? "crank_sphere" : "crank_slab", setup);
+    EXPECT_EQ(ref->columns(), (std::vector<std::string>{"reference_mass_ratio", "error_mass_ratio",
+                                                        "reference_polar_inertia", "error_polar_inertia"}));
+    EXPECT_TRUE(ref->has_mass_blob_error());
+    for (const double t : {0.0, 0.05, 0.3}) {
+      const otfp::ReferenceSample s = sample_at(t, ps);
+      const otfp::ReferenceRow row = ref->row(s);
+      const double L = sphere ? 1.0 : 2.0, tau = 0.5 * t / (L * L);
+      const double m = sphere ? crank_sphere_uptake(tau) : crank_slab_uptake(tau);
+      SlabBox box;
+      box.dim = 2;
+      box.lo = setup.lo;
+      box.hi = setup.hi;
+      box.length = 2.0;
+      box.center = setup.center;
+      box.M_inf = 2.0;
+      const double j = sphere ? 0.4 * crank_sphere_polar_inertia(tau) : t > 0.0 ? crank_slab_polar_inertia(tau, box) : 0.0;
+      ASSERT_EQ(row.values.size(), 4u);
+      EXPECT_EQ(row.values[0], m);
+      EXPECT_EQ(row.values[1], s.measures.mass_inside / 2.0 - m);
+      EXPECT_EQ(row.values[2], j);
+      EXPECT_EQ(row.values[3], (s.measures.polar_inertia - j) / 0.4);
+      EXPECT_EQ(row.reference, m);
+      ASSERT_TRUE(row.error_mass_blob);
+      EXPECT_EQ(*row.error_mass_blob, s.mass_blob / 2.0 - m);
+    }
+    const auto stats = ref->statistics();
+    ASSERT_EQ(stats.size(), 2u);
+    EXPECT_EQ(stats[0].measured(), "mass_ratio");
+    EXPECT_EQ(stats[1].measured(), "polar_inertia");
+    EXPECT_EQ(stats[1].scale(), 0.4);
+    ASSERT_TRUE(ref->mass_blob_statistics());
+    EXPECT_EQ(ref->mass_blob_statistics()->measured(), "mass_blob_ratio");
+    EXPECT_TRUE(ref->summary().empty());
+  }
+}
+
+// Free space: the blob second moment against S(0) + 2 d kappa M(0) t, the
+// error scaled by 2 d kappa M t_end; the summary's growth ratio.
+TEST(ReferenceObjects, FreeSpaceColumnsAreTheSecondMomentAndItsGrowth) {
+  otfp::ParticleSet ps = some_particles();
+  const otfp::ReferenceSetup setup = full_setup();
+  const auto ref = otfp::make_reference("free_space", setup);
+  EXPECT_EQ(ref->columns(), (std::vector<std::string>{"second_moment", "reference_second_moment", "error_second_moment"}));
+  EXPECT_FALSE(ref->has_mass_blob_error());
+  EXPECT_TRUE(ref->statistics().empty()) << "listed from the first row on";
+  double S0 = 0.0, S = 0.0;
+  const double M = ps.total_mass(), scale = 2.0 * 2 * 0.5 * M * 1.0;
+  for (const double t : {0.0, 0.1, 0.25}) {
+    const otfp::ReferenceRow row = ref->row(sample_at(t, ps));
+    S = otfp::blob_second_moment(ps, setup.center);
+    if (t == 0.0) S0 = S;
+    const double rs = S0 + 2.0 * 2 * 0.5 * 1.0 * t;  // M(0) = initial_mass = 1
+    ASSERT_EQ(row.values.size(), 3u);
+    EXPECT_EQ(row.values[0], S);
+    EXPECT_EQ(row.values[1], rs);
+    EXPECT_EQ(row.values[2], (S - rs) / scale);
+    EXPECT_EQ(row.reference, rs);
+    EXPECT_FALSE(row.error_mass_blob);
+  }
+  ASSERT_EQ(ref->statistics().size(), 1u);
+  EXPECT_EQ(ref->statistics()[0].scale(), scale);
+  const auto summary = ref->summary();
+  ASSERT_EQ(summary.size(), 1u);
+  EXPECT_EQ(summary[0].key, "growth_ratio");
+  EXPECT_EQ(std::get<double>(summary[0].value), (S - S0) / (2.0 * 2 * 0.5 * 1.0 * 0.25));
+}
+
+// Cosine mode: the amplitude against a(0) exp(-kappa k^2 t); the summary's
+// fitted rate over the rows with a > 0.05 a(0) and the time-discrete rate.
+TEST(ReferenceObjects, CosineModeColumnsAndFittedRate) {
+  otfp::ParticleSet ps = some_particles();
+  const otfp::ReferenceSetup setup = full_setup();
+  const auto ref = otfp::make_reference("cosine_mode", setup);
+  const double k = setup.wavenumber, lambda = 0.5 * k * k;
+  std::vector<double> ts, as;
+  double a0 = 0.0;
+  for (int i = 0; i <= 4; ++i) {
+    const double t = 0.01 * i;
+    const otfp::ReferenceRow row = ref->row(sample_at(t, ps));
+    const double a = otfp::cosine_mode_amplitude(ps, k, 0.0);
+    if (i == 0) a0 = a;
+    const double ra = a0 * otfp::analytic::cosine_mode_decay(0.5, k, t);
+    ASSERT_EQ(row.values.size(), 3u);
+    EXPECT_EQ(row.values[0], a);
+    EXPECT_EQ(row.values[1], ra);
+    EXPECT_EQ(row.values[2], (a - ra) / std::abs(a0));
+    if (a0 > 0.0 && a > 0.05 * a0 && ts.size() == static_cast<std::size_t>(i)) {
+      ts.push_back(t);
+      as.push_back(a);
+    }
+  }
+  ASSERT_GT(a0, 0.0);
+  std::map<std::string, std::variant<double, std::int64_t>> entries;
+  for (const otfp::ReferenceEntry& e : ref->summary()) entries[e.key] = e.value;
+  EXPECT_EQ(std::get<double>(entries.at("kappa_k2")), lambda);
+  EXPECT_EQ(std::get<std::int64_t>(entries.at("rows_fitted")), static_cast<std::int64_t>(ts.size()));
+  const double rate = otfp::decay_rate_fit(ts, as);
+  EXPECT_EQ(std::get<double>(entries.at("fitted_rate")), rate);
+  EXPECT_EQ(std::get<double>(entries.at("rate_ratio")), rate / lambda);
+  const double discrete = otfp::analytic::time_discrete_rate(otfp::TimeScheme::Euler, lambda, 0.01);
+  EXPECT_EQ(std::get<double>(entries.at("time_discrete_rate")), discrete);
+  EXPECT_EQ(std::get<double>(entries.at("rate_ratio_time_discrete")), rate / discrete);
+  // Steps that are not constant: no time-discrete rate.
+  otfp::ReferenceSetup adaptive = setup;
+  adaptive.constant_dt = 0.0;
+  for (const otfp::ReferenceEntry& e : otfp::make_reference("cosine_mode", adaptive)->summary())
+    if (e.key == "time_discrete_rate" || e.key == "rate_ratio_time_discrete" || e.key == "fitted_rate") {
+      EXPECT_TRUE(std::isnan(std::get<double>(e.value))) << e.key;
+    }
+}
+
+// Every reference saved after some rows and loaded into a new one gives the
+// same next rows, statistics and summary bit for bit; a state that lacks an
+// entry is refused naming it.
+TEST(ReferenceObjects, StateRoundTripGivesIdenticalRows) {
+  for (const std::string& name : otfp::reference_names()) {
+    SCOPED_TRACE(name);
+    otfp::ParticleSet ps = some_particles();
+    const auto a = otfp::make_reference(name, full_setup());
+    for (int i = 0; i < 4; ++i) a->row(sample_at(0.01 * i, ps));
+    const otfp::ReferenceState state = a->save_state();
+    const auto b = otfp::make_reference(name, full_setup());
+    b->load_state(state);
+    EXPECT_EQ(b->save_state(), state);
+    for (int i = 4; i < 9; ++i) {
+      const otfp::ReferenceRow ra = a->row(sample_at(0.01 * i, ps)), rb = b->row(sample_at(0.01 * i, ps));
+      EXPECT_EQ(ra.values, rb.values);
+      EXPECT_EQ(ra.reference, rb.reference);
+      EXPECT_EQ(ra.error_mass_blob, rb.error_mass_blob);
+    }
+    EXPECT_EQ(summary_text(*a), summary_text(*b));
+    EXPECT_EQ(a->save_state(), b->save_state());
+    // Loaded before any row: the first row still sets the initial values.
+    const auto fresh = otfp::make_reference(name, full_setup());
+    const auto c = otfp::make_reference(name, full_setup());
+    c->load_state(fresh->save_state());
+    EXPECT_EQ(c->row(sample_at(0.0, ps)).values, fresh->row(sample_at(0.0, ps)).values);
+    // A state with an entry missing is refused.
+    otfp::ReferenceState broken = state;
+    broken.erase(broken.begin());
+    try {
+      b->load_state(broken);
+      ADD_FAILURE() << "accepted a state without " << state.begin()->first;
+    } catch (const otfp::InvalidArgument& e) {
+      EXPECT_NE(std::string(e.what()).find(state.begin()->first), std::string::npos) << e.what();
+    }
+  }
+}
+
+// `otfp run` stopped and resumed (its checkpoint holds the reference's state):
+// series.csv and summary.json's reference are those of the run made at once,
+// for a reference of each kind.
+TEST(References, ResumedRunKeepsTheReference) {
+  const std::vector<std::pair<std::string, std::vector<std::string>>> runs = {
+      {"periodic_cosine.toml", {"run.max_steps=8", "particles.n_inf=256"}},
+      {"free_space_heat.toml", {"run.max_steps=8", "run.dim=2", "particles.n_inf=60"}},
+      {"box_mixed.toml", {"run.max_steps=6", "run.dt=0.05", "treatment.preset=papers"}},
+  };
+  for (const auto& [name, sets0] : runs) {
+    SCOPED_TRACE(name);
+    std::vector<std::string> sets = sets0;
+    sets.push_back("run.vtk_interval=0");
+    const fs::path full = fresh_dir("ref_resume_full"), cut = fresh_dir("ref_resume_cut");
+    const RunResult a = run_example(name, sets, full);
+    ASSERT_EQ(a.exit_code, 0) << a.error;
+    RunOptions o;
+    o.out_dir = cut;
+    o.stop_after_step = 3;
+    ASSERT_EQ(ConfiguredRun(parse_config_file(kExamples / name, sets)).run(o).exit_code, kExitInterrupted);
+    o.stop_after_step = 0;
+    o.resume = true;
+    const RunResult b = ConfiguredRun(parse_config_file(kExamples / name, sets)).run(o);
+    ASSERT_EQ(b.exit_code, 0) << b.error;
+    EXPECT_EQ(otfp::test::read_text(full / "series.csv"), otfp::test::read_text(cut / "series.csv"));
+    EXPECT_EQ(a.summary.at("reference").dump(), b.summary.at("reference").dump());
+    fs::remove_all(full);
+    fs::remove_all(cut);
+  }
 }

@@ -1,14 +1,17 @@
-// The papers' parameter rules (36)-(40), the diagnostics, and the analytic
-// references (submodule otfp.analytic).
+// The papers' parameter rules (36)-(40), the diagnostics, the analytic
+// references (submodule otfp.analytic) and the reference objects
+// (otfp/reference.hpp: Reference, make_reference, ErrorStatistics, decay_rate_fit).
 #include "common.hpp"
 
 #include <string>
+#include <variant>
 
 #include "otfp/analytic.hpp"
 #include "otfp/diagnostics.hpp"
 #include "otfp/enums.hpp"
 #include "otfp/neighbor_list.hpp"
 #include "otfp/parameters.hpp"
+#include "otfp/reference.hpp"
 
 #include "bindings.hpp"
 
@@ -74,6 +77,113 @@ void bind_references(py::module_& m) {
          },
          py::arg("scheme"), py::arg("lam"), py::arg("dt"),
          "Decay rate of exp(-lam t) under the time scheme alone (TimeScheme or ExplicitScheme, or its name).");
+
+  // ---- reference objects (what `otfp run` writes for diagnostics.reference)
+  py::class_<ErrorStatistics>(m, "ErrorStatistics",
+                              "Running statistics of error = (measured - reference) / scale, trapezoid rule in time.")
+      .def(py::init<std::string, double, std::string>(), py::arg("measured") = "", py::arg("scale") = 1.0,
+           py::arg("scale_rule") = "")
+      .def("add", &ErrorStatistics::add, py::arg("t"), py::arg("measured"), py::arg("reference"),
+           "Adds the row at time t; returns its error.")
+      .def_property_readonly("measured", &ErrorStatistics::measured)
+      .def_property_readonly("scale", &ErrorStatistics::scale)
+      .def_property_readonly("scale_rule", &ErrorStatistics::scale_rule)
+      .def_property_readonly("started", &ErrorStatistics::started)
+      .def_property_readonly("t_first", &ErrorStatistics::t_first)
+      .def_property_readonly("t_last", &ErrorStatistics::t_last)
+      .def_property_readonly("max_abs_error", &ErrorStatistics::max_abs_error)
+      .def_property_readonly("l1_time_error", &ErrorStatistics::l1_time_error)
+      .def_property_readonly("mean_abs_error", &ErrorStatistics::mean_abs_error)
+      .def_property_readonly("final_error", &ErrorStatistics::final_error)
+      .def_property_readonly("l1_norm", &ErrorStatistics::l1_norm)
+      .def_property_readonly("l1_norm_reference", &ErrorStatistics::l1_norm_reference)
+      .def_property_readonly("l1_norm_relative_error", &ErrorStatistics::l1_norm_relative_error)
+      .def("state", &ErrorStatistics::state)
+      .def("load_state", &ErrorStatistics::load_state, py::arg("state"));
+  m.def("decay_rate_fit", &decay_rate_fit, py::arg("t"), py::arg("a"),
+        "Minus the least-squares slope of log a against t (nan for fewer than 3 samples).");
+  Options<ReferenceSetup>(m, "ReferenceSetup", "What make_reference sets a reference up with.")
+      .field("dim", &ReferenceSetup::dim, "1, 2 or 3")
+      .field("kappa", &ReferenceSetup::kappa, "diffusivity")
+      .field("t_end", &ReferenceSetup::t_end, "end of the run (free_space: the error scale)")
+      .field("center", &ReferenceSetup::center, "centre of the polar inertia and second moment")
+      .field("M_inf", &ReferenceSetup::M_inf, "crank_*: the mass ratios are M / M_inf")
+      .field("radius", &ReferenceSetup::radius, "crank_sphere: R")
+      .field("length", &ReferenceSetup::length, "crank_slab: L")
+      .field("J_inf", &ReferenceSetup::J_inf, "crank_*: analytic steady polar inertia (None: no polar inertia)")
+      .field("lo", &ReferenceSetup::lo, "crank_slab: box corner")
+      .field("hi", &ReferenceSetup::hi, "crank_slab: box corner")
+      .field("slab_axis", &ReferenceSetup::slab_axis, "crank_slab: normal of the held face")
+      .field("slab_held_at_hi", &ReferenceSetup::slab_held_at_hi, "crank_slab: the held face is x = hi")
+      .field("wavenumber", &ReferenceSetup::wavenumber, "cosine_mode: k")
+      .field("x0", &ReferenceSetup::x0, "cosine_mode: origin of the mode along x")
+      .field("constant_dt", &ReferenceSetup::constant_dt, "cosine_mode: the constant step (0: none)")
+      .field("stepper", &ReferenceSetup::stepper, "cosine_mode: implicit or explicit")
+      .field("time_scheme", &ReferenceSetup::time_scheme, "cosine_mode: implicit scheme")
+      .field("explicit_scheme", &ReferenceSetup::explicit_scheme, "cosine_mode: explicit scheme")
+      .done();
+  py::class_<ReferenceRow>(m, "ReferenceRow", "One row of a reference: values per column.")
+      .def_readonly("values", &ReferenceRow::values)
+      .def_readonly("reference", &ReferenceRow::reference)
+      .def_readonly("error_mass_blob", &ReferenceRow::error_mass_blob);
+  using PyReference = Locked<Reference>;
+  py::class_<PyReference>(m, "Reference", "An analytic reference (make_reference).")
+      .def_property_readonly("name", [](PyReference& r) { return r.object->name(); })
+      .def_property_readonly("columns", [](PyReference& r) { return r.object->columns(); })
+      .def_property_readonly("has_mass_blob_error", [](PyReference& r) { return r.object->has_mass_blob_error(); })
+      .def("row",
+           [](PyReference& r, double t, const StateMeasures* measures, double mass_blob, const ParticleSet* particles,
+              double initial_mass) {
+             auto held = r.lock.hold();
+             ReferenceSample s;
+             s.t = t;
+             if (measures) s.measures = *measures;
+             s.mass_blob = mass_blob;
+             s.particles = particles;
+             s.initial_mass = initial_mass;
+             return r.object->row(s);
+           },
+           py::arg("t"), py::arg("measures") = nullptr, py::arg("mass_blob") = 0.0, py::arg("particles") = nullptr,
+           py::arg("initial_mass") = 0.0,
+           "The row at time t (rows in time order, the first at the start): measures from Simulation.measure, "
+           "mass_blob from Simulation.blob_mass (crank_*), particles (free_space, cosine_mode), initial_mass "
+           "(free_space).")
+      .def("statistics",
+           [](PyReference& r) {
+             auto held = r.lock.hold();
+             return r.object->statistics();
+           })
+      .def("mass_blob_statistics",
+           [](PyReference& r) {
+             auto held = r.lock.hold();
+             return r.object->mass_blob_statistics();
+           })
+      .def("summary",
+           [](PyReference& r) {
+             auto held = r.lock.hold();
+             py::dict d;
+             for (const ReferenceEntry& e : r.object->summary())
+               d[py::str(e.key)] = std::visit([](auto v) { return py::cast(v); }, e.value);
+             return d;
+           },
+           "Its own entries of summary.json's reference (a dict).")
+      .def("save_state",
+           [](PyReference& r) {
+             auto held = r.lock.hold();
+             return r.object->save_state();
+           })
+      .def("load_state",
+           [](PyReference& r, const ReferenceState& state) {
+             auto held = r.lock.hold();
+             r.object->load_state(state);
+           },
+           py::arg("state"));
+  m.def("reference_names", &reference_names);
+  m.def("make_reference",
+        [](const std::string& name, const ReferenceSetup& setup) {
+          return std::make_unique<PyReference>(make_reference(name, setup));
+        },
+        py::arg("name"), py::arg("setup"), "crank_sphere, crank_slab, free_space or cosine_mode (reference_names()).");
 }
 
 }  // namespace otfp::python

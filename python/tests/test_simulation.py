@@ -168,6 +168,42 @@ def test_measure_and_references():
     assert list(otfp.analytic.crank_sphere_uptake(tau)) == [otfp.analytic.crank_sphere_uptake(t) for t in tau]
 
 
+def test_reference_objects():
+    # Crank's sphere on the simulation's measures: the columns are the analytic curves.
+    sim = small_simulation()
+    assert otfp.reference_names() == ["crank_sphere", "crank_slab", "free_space", "cosine_mode"]
+    ref = otfp.make_reference("crank_sphere", otfp.ReferenceSetup(radius=1.0, M_inf=4.18879020478639 * 1.0))
+    assert ref.columns == ["reference_mass_ratio", "error_mass_ratio"] and ref.has_mass_blob_error
+    rows = []
+    for k in range(3):
+        if k:
+            sim.advance(0.0025)
+        ms, _ = sim.measure([0, 0, 0])
+        row = ref.row(sim.time, ms, mass_blob=sim.blob_mass())
+        m = otfp.analytic.crank_sphere_uptake(sim.time)
+        assert row.values == [m, ms.mass_inside / 4.18879020478639 - m]
+        assert row.error_mass_blob == sim.blob_mass() / 4.18879020478639 - m
+        rows.append(row.values)
+    stats = ref.statistics()
+    assert [s.measured for s in stats] == ["mass_ratio"]
+    assert stats[0].max_abs_error == max(abs(r[1]) for r in rows)
+    # The state continues the statistics exactly.
+    again = otfp.make_reference("crank_sphere", otfp.ReferenceSetup(radius=1.0, M_inf=4.18879020478639))
+    again.load_state(ref.save_state())
+    assert again.statistics()[0].state() == stats[0].state()
+    # The decay-rate fit and the cosine mode's summary entries.
+    t = np.linspace(0.0, 0.5, 11)
+    assert otfp.decay_rate_fit(t, 0.3 * np.exp(-2.5 * t)) == pytest.approx(2.5, rel=1e-12)
+    cos = otfp.make_reference("cosine_mode", otfp.ReferenceSetup(dim=2, wavenumber=2 * np.pi, constant_dt=0.01))
+    ps = otfp.ParticleSet(2)
+    ps.add([0.0, 0.0], 0.05, 1.0)
+    cos.row(0.0, particles=ps)
+    assert cos.summary()["kappa_k2"] == pytest.approx(4 * np.pi ** 2)
+    assert cos.summary()["rows_fitted"] == 1
+    with pytest.raises(ValueError):
+        otfp.make_reference("crank_cylinder", otfp.ReferenceSetup())
+
+
 def test_brief_report_prints_six_significant_digits():
     sim = small_simulation()
     sim.advance(0.1)

@@ -16,6 +16,7 @@
 #include "otfp/explicit_stepper.hpp"
 #include "otfp/implicit_stepper.hpp"
 #include "otfp/minimizer.hpp"
+#include "otfp/reference.hpp"
 
 namespace otfp::app {
 
@@ -232,6 +233,13 @@ std::vector<std::string> names(std::initializer_list<E> values) {
   return out;
 }
 
+// diagnostics.reference: "none" and the library's references (otfp/reference.hpp).
+std::vector<std::string> reference_choices() {
+  std::vector<std::string> out = {"none"};
+  for (const std::string& name : reference_names()) out.push_back(name);
+  return out;
+}
+
 bool domain_is(const Config& c, std::initializer_list<const char*> types) {
   for (const char* t : types)
     if (c.domain.type == t) return true;
@@ -376,8 +384,7 @@ const std::vector<Field>& fields() {
         key("diagnostics.center", &DiagnosticsSection::center),
         key("diagnostics.M_inf", &DiagnosticsSection::M_inf).with(greater(0)),
         key("diagnostics.J_inf", &DiagnosticsSection::J_inf).with(greater(0)),
-        key("diagnostics.reference", &DiagnosticsSection::reference)
-            .one_of({"none", "crank_sphere", "crank_slab", "free_space", "cosine_mode"}),
+        key("diagnostics.reference", &DiagnosticsSection::reference).one_of(reference_choices()),
         key("diagnostics.reference_radius", &DiagnosticsSection::reference_radius).with(greater(0)),
         key("diagnostics.reference_length", &DiagnosticsSection::reference_length).with(greater(0)),
     };

@@ -22,7 +22,6 @@
 #include <regex>
 
 #include "domain_setup.hpp"
-#include "otfp/analytic.hpp"
 #include "otfp/barrier.hpp"
 #include "otfp/fractional.hpp"
 #include "otfp/images.hpp"
@@ -35,6 +34,7 @@
 #include "otfp/surface.hpp"
 #include "otfp/vtk.hpp"
 #include "otfp/particle_io.hpp"
+#include "otfp/reference.hpp"
 #include "otfp/simulation.hpp"
 #include "otfp/stepper.hpp"
 #include "otfp/time_step_control.hpp"
@@ -79,73 +79,60 @@ std::string hms(double seconds) {
                    : fmt::format("{}:{:02}", s / 60, s % 60);
 }
 
-// Running error statistics of one measured quantity against its reference
-// (error = (measured - reference) / scale), trapezoid rule in time.
-struct ErrorStats {
-  std::string measured, scale_rule;
-  double scale = 1.0;
-  double max_abs = 0.0, l1_time = 0.0, final_error = 0.0, l1_measured = 0.0, l1_reference = 0.0;
-  double t_prev = 0.0, e_prev = 0.0, m_prev = 0.0, r_prev = 0.0, t_first = 0.0;
-  bool started = false;
+// The analytic reference of diagnostics.reference (otfp/reference.hpp), or null.
+std::unique_ptr<Reference> configured_reference(const Config& c, const Derived& d) {
+  if (c.diagnostics.reference == "none") return nullptr;
+  ReferenceSetup s;
+  s.dim = c.run.dim;
+  s.kappa = c.physics.kappa;
+  s.t_end = c.run.t_end;
+  s.center = d.center;
+  s.M_inf = d.M_inf;
+  s.radius = d.reference_radius.value_or(0.0);
+  s.length = d.reference_length.value_or(0.0);
+  s.J_inf = d.reference_J_inf;
+  s.lo = c.domain.lo;
+  s.hi = c.domain.hi;
+  s.slab_axis = d.slab_axis;
+  s.slab_held_at_hi = d.slab_held_at_hi;
+  s.wavenumber = d.mode_wavenumber;
+  s.x0 = c.domain.lo[0];
+  s.constant_dt = c.run.dt_mode == "fixed" ? d.dt : 0.0;
+  s.stepper = stepper_kind_from_string(c.solver.stepper);
+  s.time_scheme = time_scheme_from_string(c.solver.time_scheme);
+  s.explicit_scheme = explicit_scheme_from_string(c.solver.explicit_scheme);
+  return make_reference(c.diagnostics.reference, s);
+}
 
-  double add(double t, double m, double r) {
-    const double e = (m - r) / scale;
-    if (started) {
-      const double h = t - t_prev;
-      // |e| is piecewise linear: integrate exactly across a sign change.
-      if (e * e_prev >= 0.0)
-        l1_time += 0.5 * (std::abs(e) + std::abs(e_prev)) * h;
-      else
-        l1_time += 0.5 * (e * e + e_prev * e_prev) / (std::abs(e) + std::abs(e_prev)) * h;
-      l1_measured += 0.5 * (m + m_prev) * h;
-      l1_reference += 0.5 * (r + r_prev) * h;
-    } else {
-      t_first = t;
-    }
-    max_abs = std::max(max_abs, std::abs(e));
-    final_error = e;
-    t_prev = t;
-    e_prev = e;
-    m_prev = m;
-    r_prev = r;
-    started = true;
-    return e;
-  }
+nlohmann::json statistics_json(const ErrorStatistics& e) {
+  return {{"measured", e.measured()},
+          {"scale", e.scale()},
+          {"scale_rule", e.scale_rule()},
+          {"max_abs_error", e.max_abs_error()},
+          {"l1_time_error", e.l1_time_error()},
+          {"mean_abs_error", e.mean_abs_error()},
+          {"final_error", e.final_error()},
+          {"l1_norm", e.l1_norm()},
+          {"l1_norm_reference", e.l1_norm_reference()},
+          {"l1_norm_relative_error", e.l1_norm_relative_error()}};
+}
 
-  // The whole state, for checkpoints.
-  nlohmann::json state() const {
-    return {{"measured", measured}, {"scale_rule", scale_rule}, {"scale", scale},     {"max_abs", max_abs},
-            {"l1_time", l1_time},   {"final_error", final_error}, {"l1_measured", l1_measured},
-            {"l1_reference", l1_reference}, {"t_prev", t_prev}, {"e_prev", e_prev}, {"m_prev", m_prev},
-            {"r_prev", r_prev},     {"t_first", t_first},       {"started", started}};
-  }
-  static ErrorStats from_state(const nlohmann::json& j) {
-    ErrorStats e;
-    e.measured = j.at("measured").get<std::string>();
-    e.scale_rule = j.at("scale_rule").get<std::string>();
-    for (auto [key, field] : {std::pair{"scale", &e.scale}, {"max_abs", &e.max_abs}, {"l1_time", &e.l1_time},
-                              {"final_error", &e.final_error}, {"l1_measured", &e.l1_measured},
-                              {"l1_reference", &e.l1_reference}, {"t_prev", &e.t_prev}, {"e_prev", &e.e_prev},
-                              {"m_prev", &e.m_prev}, {"r_prev", &e.r_prev}, {"t_first", &e.t_first}})
-      *field = j.at(key).get<double>();
-    e.started = j.at("started").get<bool>();
-    return e;
-  }
-
-  nlohmann::json json() const {
-    const double span = t_prev - t_first;
-    return {{"measured", measured},
-            {"scale", scale},
-            {"scale_rule", scale_rule},
-            {"max_abs_error", max_abs},
-            {"l1_time_error", l1_time},
-            {"mean_abs_error", span > 0.0 ? l1_time / span : 0.0},
-            {"final_error", final_error},
-            {"l1_norm", l1_measured},
-            {"l1_norm_reference", l1_reference},
-            {"l1_norm_relative_error", l1_reference != 0.0 ? (l1_measured - l1_reference) / l1_reference : 0.0}};
-  }
-};
+// summary.json "reference" (docs/outputs.md).
+nlohmann::json reference_json(const Reference& ref) {
+  nlohmann::json q = nlohmann::json::array();
+  for (const ErrorStatistics& e : ref.statistics()) q.push_back(statistics_json(e));
+  nlohmann::json j = {{"curve", ref.name()},
+                      {"error_rule", "error = (measured - reference) / scale per row; max_abs_error over rows; "
+                                     "l1_time_error = integral of |error| dt (trapezoid); mean_abs_error = "
+                                     "l1_time_error / t; l1_norm = integral of the quantity dt (trapezoid)"},
+                      {"quantities", q}};
+  if (const auto blob = ref.mass_blob_statistics()) j["mass_blob"] = statistics_json(*blob);
+  for (const ReferenceEntry& e : ref.summary())
+    j[e.key] = std::visit(
+        [](auto v) { return std::isfinite(static_cast<double>(v)) ? nlohmann::json(v) : nlohmann::json(nullptr); },
+        e.value);
+  return j;
+}
 
 // Checkpoint state of the driver's running sums (doubles round-trip exactly in JSON).
 nlohmann::json measures_state(const StateMeasures& m) {
@@ -182,6 +169,17 @@ class ResumeRefused : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
+
+// The reference's state in a checkpoint's driver state (refused if it is not
+// one of this reference: a nlohmann::json exception or InvalidArgument).
+void load_reference_state(Reference& reference, const nlohmann::json& state, const std::filesystem::path& checkpoint) {
+  try {
+    reference.load_state(state.get<ReferenceState>());
+  } catch (const InvalidArgument& e) {
+    throw ResumeRefused(fmt::format("checkpoint {}: not written by otfp run (its driver state: {})", checkpoint.string(),
+                                    e.what()));
+  }
+}
 
 // The lines of a run's CSV file (series.csv, timing.csv) up to step k, header
 // kept, for a resume to continue. Checked first, so that a resume never
@@ -881,30 +879,9 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
 
   // Column layout of series.csv (fixed by the configuration, not by the run).
   const bool has_j_ratio = d.J_inf.has_value();
-  const std::string& ref = c.diagnostics.reference;
-  // Reference columns and their error statistics (docs/outputs.md).
-  std::vector<std::string> ref_columns;
-  std::vector<ErrorStats> ref_stats;
-  auto add_stats = [&](const std::string& measured, double scale, const std::string& rule) {
-    ErrorStats e;
-    e.measured = measured;
-    e.scale = scale;
-    e.scale_rule = rule;
-    ref_stats.push_back(e);
-  };
-  const bool crank = ref == "crank_sphere" || ref == "crank_slab";
-  if (crank) {
-    ref_columns = {"reference_mass_ratio", "error_mass_ratio"};
-    add_stats("mass_ratio", 1.0, "M_inf (the error is in units of M/M_inf)");
-    if (d.reference_J_inf) {
-      ref_columns.insert(ref_columns.end(), {"reference_polar_inertia", "error_polar_inertia"});
-      add_stats("polar_inertia", *d.reference_J_inf, "analytic steady polar inertia J_ref(inf)");
-    }
-  } else if (ref == "free_space") {
-    ref_columns = {"second_moment", "reference_second_moment", "error_second_moment"};
-  } else if (ref == "cosine_mode") {
-    ref_columns = {"mode_amplitude", "reference_mode_amplitude", "error_mode_amplitude"};
-  }
+  // The analytic reference: its columns, rows, error statistics and state (docs/outputs.md).
+  const std::unique_ptr<Reference> reference = configured_reference(c, d);
+  const std::vector<std::string> ref_columns = reference ? reference->columns() : std::vector<std::string>{};
   std::string header =
       "step,t,dt,n_particles,mass_total,mass_inside,polar_inertia,inserted,removed,energy,iterations,evaluations,"
       "mass_with_layer,polar_inertia_with_layer,polar_inertia_total,n_inside,n_buffer,n_outside,inserted_total,"
@@ -913,17 +890,14 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       "l1_polar_inertia,mass_ratio";
   if (has_j_ratio) header += ",polar_inertia_ratio";
   header += ",mass_blob,mass_blob_ratio";
-  // M_rho / M_inf against the same mass reference (summary.json reference.mass_blob).
-  ErrorStats blob_stats;
   // Closed forms cost ~0.1 us per particle (disc and cylinder ~3 us near the
   // wall); the quadrature path (square_pipe_obstacle) runs 4 x 4 normal lines
   // per blob near a wall instead of the library's 10 x 10 (6x cheaper, about
   // 1e-3 of the near-wall blob mass either way, docs/outputs.md).
   BlobMassOptions blob_options;
   blob_options.hermite_nodes = 4;
-  blob_stats.measured = "mass_blob_ratio";
-  blob_stats.scale_rule = "M_inf (the error is in units of M/M_inf)";
-  if (crank) header += ",error_mass_blob";
+  // M_rho / M_inf against the mass reference (summary.json reference.mass_blob).
+  if (reference && reference->has_mass_blob_error()) header += ",error_mass_blob";
   for (const std::string& col : ref_columns) header += "," + col;
   header += "\n";
 
@@ -932,9 +906,6 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
   // (46): the rectangle sums go into the series, the trapezoid sums into summary.json.
   L1Norms l1;
   StateMeasures prev_measures;
-  double S0 = 0.0, A0 = 0.0;  // second moment and mode amplitude at t = 0
-  std::vector<std::pair<double, double>> mode_log;  // (t, log A) while A > 0.05 A0
-  bool mode_fit_open = true;
   // The step being taken (fixed: d.dt, as (46) is summed; adaptive: its own
   // length) and the tries the error test rejected before it.
   double step_dt = d.dt;
@@ -993,59 +964,19 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
     if (d.J_inf) r.polar_inertia_ratio = r.polar_inertia / *d.J_inf;
     r.mass_blob = sim.blob_mass(blob_options);
     r.mass_blob_ratio = r.mass_blob / d.M_inf;
-    // Analytic references: measured, reference, error (scaled) per row.
-    auto& rv = r.reference_values;
-    if (crank) {
-      const double L = ref == "crank_sphere" ? *d.reference_radius : *d.reference_length;
-      const double tau = c.physics.kappa * t / (L * L);
-      const double rm = ref == "crank_sphere" ? analytic::crank_sphere_uptake(tau) : analytic::crank_slab_uptake(tau);
-      rv = {rm, ref_stats[0].add(t, r.mass_ratio, rm)};
-      if (d.reference_J_inf) {
-        double rj = 0.0;
-        if (ref == "crank_sphere") {
-          rj = *d.reference_J_inf * analytic::crank_sphere_polar_inertia(tau);
-        } else if (t > 0.0) {
-          analytic::SlabBox slab;
-          slab.dim = dim;
-          slab.lo = c.domain.lo;
-          slab.hi = c.domain.hi;
-          slab.axis = d.slab_axis;
-          slab.held_at_hi = d.slab_held_at_hi;
-          slab.length = L;
-          slab.center = d.center;
-          slab.M_inf = d.M_inf;
-          rj = analytic::crank_slab_polar_inertia(tau, slab);
-        }
-        rv.push_back(rj);
-        rv.push_back(ref_stats[1].add(t, r.polar_inertia, rj));
-      }
-      r.error_mass_blob = blob_stats.add(t, r.mass_blob_ratio, rm);
-    } else if (ref == "free_space") {
-      const double S = blob_second_moment(particles, d.center);
-      if (step == 0) {
-        S0 = S;
-        add_stats("second_moment", 2.0 * dim * c.physics.kappa * r.mass_total * c.run.t_end,
-                  "2 d kappa M t_end (the reference growth over the run)");
-      }
-      const double rs = S0 + 2.0 * dim * c.physics.kappa * M0 * t;
-      rv = {S, rs, ref_stats[0].add(t, S, rs)};
-    } else if (ref == "cosine_mode") {
-      const double k = d.mode_wavenumber;
-      const double A = cosine_mode_amplitude(particles, k, c.domain.lo[0]);
-      if (step == 0) {
-        A0 = A;
-        add_stats("mode_amplitude", std::abs(A0), "the initial amplitude a(0)");
-      }
-      const double ra = A0 * analytic::cosine_mode_decay(c.physics.kappa, k, t);
-      rv = {A, ra, ref_stats[0].add(t, A, ra)};
-      // Fit window: from t = 0 until a(t) first falls to 5% of a(0) (later
-      // rows are noise that may come back above it).
-      if (mode_fit_open && A > 0.05 * std::abs(A0) && A0 > 0.0)
-        mode_log.emplace_back(t, std::log(A));
-      else
-        mode_fit_open = false;
+    // Analytic reference: measured, reference, error (scaled) per row.
+    if (reference) {
+      ReferenceSample sample;
+      sample.t = t;
+      sample.measures = ms;
+      sample.mass_blob = r.mass_blob;
+      sample.particles = &particles;
+      sample.initial_mass = M0;
+      ReferenceRow row = reference->row(sample);
+      r.reference_values = std::move(row.values);
+      r.reference = row.reference;
+      r.error_mass_blob = row.error_mass_blob;
     }
-    if (!rv.empty()) r.reference = ref == "crank_sphere" || ref == "crank_slab" ? rv[0] : rv[1];
     r.wall_seconds = wall();
     return r;
   };
@@ -1189,48 +1120,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
                {"mass_with_layer_trapezoid", l1.mass_with_layer_trapezoid},
                {"polar_inertia_inside_trapezoid", l1.polar_inertia_inside_trapezoid},
                {"polar_inertia_with_layer_trapezoid", l1.polar_inertia_with_layer_trapezoid}};
-    if (ref != "none") {
-      nlohmann::json q = nlohmann::json::array();
-      for (const ErrorStats& e : ref_stats) q.push_back(e.json());
-      j["reference"] = {{"curve", ref},
-                        {"error_rule", "error = (measured - reference) / scale per row; max_abs_error over rows; "
-                                       "l1_time_error = integral of |error| dt (trapezoid); mean_abs_error = "
-                                       "l1_time_error / t; l1_norm = integral of the quantity dt (trapezoid)"},
-                        {"quantities", q}};
-      if (crank) j["reference"]["mass_blob"] = blob_stats.json();
-      if (ref == "free_space" && last.t > 0.0 && !last.reference_values.empty())
-        j["reference"]["growth_ratio"] = (last.reference_values[0] - S0) / (2.0 * dim * c.physics.kappa * M0 * last.t);
-      if (ref == "cosine_mode") {
-        // Least-squares slope of log a(t) over the rows with a > 0.05 a(0).
-        const double lambda = c.physics.kappa * d.mode_wavenumber * d.mode_wavenumber;
-        double rate = std::numeric_limits<double>::quiet_NaN();
-        if (mode_log.size() >= 3) {
-          double st_ = 0.0, sy = 0.0, stt = 0.0, sty = 0.0;
-          for (const auto& [tt, y] : mode_log) {
-            st_ += tt;
-            sy += y;
-            stt += tt * tt;
-            sty += tt * y;
-          }
-          const double m = static_cast<double>(mode_log.size());
-          rate = -(m * sty - st_ * sy) / (m * stt - st_ * st_);
-        }
-        // Constant steps only (BDF2: its first step is Euler).
-        const double discrete =
-            c.run.dt_mode != "fixed" ? std::numeric_limits<double>::quiet_NaN()
-            : c.solver.stepper != "implicit"
-                ? analytic::time_discrete_rate(explicit_scheme_from_string(c.solver.explicit_scheme), lambda, d.dt)
-                : analytic::time_discrete_rate(time_scheme_from_string(c.solver.time_scheme), lambda, d.dt);
-        j["reference"]["wavenumber"] = d.mode_wavenumber;
-        j["reference"]["kappa_k2"] = lambda;
-        j["reference"]["rows_fitted"] = mode_log.size();
-        j["reference"]["fitted_rate"] = std::isfinite(rate) ? nlohmann::json(rate) : nlohmann::json(nullptr);
-        j["reference"]["rate_ratio"] = std::isfinite(rate) ? nlohmann::json(rate / lambda) : nlohmann::json(nullptr);
-        j["reference"]["time_discrete_rate"] = std::isfinite(discrete) ? nlohmann::json(discrete) : nlohmann::json(nullptr);
-        j["reference"]["rate_ratio_time_discrete"] =
-            std::isfinite(rate) && std::isfinite(discrete) ? nlohmann::json(rate / discrete) : nlohmann::json(nullptr);
-      }
-    }
+    if (reference) j["reference"] = reference_json(*reference);
     j["ledger"] = ledger_json();
     const SimulationTotals& tt = sim.totals();
     j["solver_totals"] = {{"iterations", tt.iterations},
@@ -1373,13 +1263,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       nlohmann::json js;
       js["l1"] = l1_state(l1);
       js["prev_measures"] = measures_state(prev_measures);
-      js["S0"] = S0;
-      js["A0"] = A0;
-      js["mode_log"] = mode_log;
-      js["mode_fit_open"] = mode_fit_open;
-      js["ref_stats"] = nlohmann::json::array();
-      for (const ErrorStats& e : ref_stats) js["ref_stats"].push_back(e.state());
-      js["blob_stats"] = blob_stats.state();
+      js["reference"] = reference ? nlohmann::json(reference->save_state()) : nlohmann::json::object();
       js["snapshots"] = snapshots;
       js["last_snapshot"] = last_snapshot;
       js["n0"] = n0;
@@ -1471,13 +1355,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
         try {
           l1 = l1_from_state(js.at("l1"));
           prev_measures = measures_from_state(js.at("prev_measures"));
-          S0 = js.at("S0").get<double>();
-          A0 = js.at("A0").get<double>();
-          mode_log = js.at("mode_log").get<std::vector<std::pair<double, double>>>();
-          mode_fit_open = js.at("mode_fit_open").get<bool>();
-          ref_stats.clear();
-          for (const auto& e : js.at("ref_stats")) ref_stats.push_back(ErrorStats::from_state(e));
-          blob_stats = ErrorStats::from_state(js.at("blob_stats"));
+          if (reference) load_reference_state(*reference, js.at("reference"), checkpoint_file);
           snapshots = js.at("snapshots").get<std::vector<std::pair<double, std::string>>>();
           last_snapshot = js.at("last_snapshot").get<std::int64_t>();
           n0 = js.at("n0").get<std::int64_t>();
