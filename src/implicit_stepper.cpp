@@ -2,6 +2,7 @@
 #include <cstdio>
 #include <cmath>
 #include <algorithm>
+#include <stdexcept>
 #include <limits>
 #include <string>
 
@@ -271,6 +272,18 @@ ImplicitStepper::ImplicitStepper(int dim, ImplicitOptions options, Barrier barri
 void ImplicitStepper::reset_history() {
   history_.clear();
   dt1_ = dt2_ = 0.0;
+  previous_history_.clear();
+  can_undo_history_ = false;
+}
+
+void ImplicitStepper::undo_last_history_update() {
+  if (!can_undo_history_)
+    throw std::logic_error("ImplicitStepper::undo_last_history_update: the history's last change was not an accepted step");
+  history_.swap(previous_history_);
+  dt1_ = previous_dt1_;
+  dt2_ = previous_dt2_;
+  previous_history_.clear();
+  can_undo_history_ = false;
 }
 
 ImplicitStepper::HistoryState ImplicitStepper::history_state() const {
@@ -300,6 +313,8 @@ void ImplicitStepper::restore_history(const HistoryState& st) {
   history_ = std::move(map);
   dt1_ = st.dt1;
   dt2_ = st.dt2;
+  previous_history_.clear();
+  can_undo_history_ = false;
 }
 
 // The predictor's start for one particle: the extrapolation `to`, or the
@@ -784,6 +799,11 @@ StepSummary ImplicitStepper::step(ParticleSet& particles, double dt, double max_
       particles.reorder(order);
       particles.positions() = std::move(x);
       particles.widths() = std::move(s);
+      // The old history is moved aside, not dropped: undo_last_history_update().
+      previous_history_.swap(history_);
+      previous_dt1_ = dt1_;
+      previous_dt2_ = dt2_;
+      can_undo_history_ = true;
       history_.clear();
       history_.reserve(hist.size());
       for (std::size_t i = 0; i < hist.size(); ++i) history_.emplace(particles.ids()[i], hist[i]);
