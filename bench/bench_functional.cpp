@@ -5,7 +5,9 @@
 // widths reach in the sphere (study 2: median 1.7 s0, 15% at 2-6 s0).
 // The "Images" variant mirrors the blobs across the six walls of the unit box
 // (docs/boundaries.md); its time includes choosing the images at each list
-// build only in the list-build benchmark.
+// build only in the list-build benchmark. BM_ImageSelection times the choice
+// of the images alone (WallImages::select, issue 24) in the box and in a ball
+// with a mirrored shell outside it (the sphere example's reservoir band).
 //   ./otfp_bench_functional --benchmark_counters_tabular=true
 #include <benchmark/benchmark.h>
 #include <omp.h>
@@ -120,6 +122,46 @@ void BM_NeighborListBuildImages(benchmark::State& state) {
 }
 void BM_NeighborListBuildTailed(benchmark::State& state) { run_list_build(state, true); }
 
+// WallImages::select alone. Args: domain (0: the unit cube, six plane walls;
+// 1: the unit ball with particles filling it out to 1.2, the shell of radius
+// 1.2 mirrored, as the sphere example's band's back face), n, threads. The
+// reach is what Functional::rebuild_list passes: r_c(s) + skin, beta = 2/dr^2.
+void BM_ImageSelection(benchmark::State& state) {
+  const int domain = static_cast<int>(state.range(0));
+  const auto n = static_cast<std::size_t>(state.range(1));
+  omp_set_num_threads(static_cast<int>(state.range(2)));
+  static std::map<std::pair<int, std::size_t>, std::vector<Vec3>> cache;
+  std::vector<Vec3>& x = cache[{domain, n}];
+  std::vector<MirrorWallPtr> walls;
+  double volume = 1.0;
+  if (domain == 0) {
+    walls = mirror_walls(*make_box(3, Vec3::Zero(), Vec3::Ones()));
+  } else {
+    walls = {make_sphere_wall(3, Vec3::Zero(), 1.2)};
+    volume = 4.0 / 3.0 * 3.14159265358979 * 1.2 * 1.2 * 1.2;
+  }
+  if (x.empty()) {
+    Rng rng(2024);
+    x.reserve(n);
+    while (x.size() < n) {
+      const Vec3 p(rng.uniform(-1.2, 1.2), rng.uniform(-1.2, 1.2), rng.uniform(-1.2, 1.2));
+      if (domain == 0) x.push_back(0.5 * (p / 1.2 + Vec3::Ones()));
+      else if (p.norm() < 1.2) x.push_back(p);
+    }
+  }
+  const double dr = std::cbrt(volume / static_cast<double>(n));
+  const double s = dr / std::sqrt(2.0);
+  const std::vector<double> reach(n, cutoff_radius(s, 1e-8) + s);
+  WallImages images(walls);
+  for (auto _ : state) {
+    images.select(x, reach);
+    benchmark::DoNotOptimize(images.sources().data());
+  }
+  state.counters["images_per_particle"] = static_cast<double>(images.size()) / static_cast<double>(n);
+  state.counters["threads"] = static_cast<double>(state.range(2));
+  state.SetLabel(domain == 0 ? "box, 6 planes" : "ball, 1 sphere");
+}
+
 // The two pair sweeps alone, one thread: variant 0 is the kernel before
 // issue 15 (bench/baseline_kernels.cpp: separate arrays, compiler-vectorised
 // gathers), 1 the library's kernel (packed records; AVX2 build when the CPU
@@ -225,6 +267,10 @@ BENCHMARK(BM_FunctionalValueAndGradientImages)
     ->UseRealTime();
 BENCHMARK(BM_NeighborListBuildImages)
     ->ArgsProduct({{10000, 100000}, {1}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_ImageSelection)
+    ->ArgsProduct({{0, 1}, {2000, 100000, 1000000}, {1, 2}})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK(BM_FunctionalValueAndGradientTailed)

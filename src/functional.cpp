@@ -314,9 +314,11 @@ void Functional::select_images(const std::vector<Vec3>& x, const std::vector<dou
   const std::vector<double>& sl = list_widths(s);
   const double s_min = sl.empty() ? 1.0 : *std::min_element(sl.begin(), sl.end());
   const double skin = no.skin >= 0.0 ? no.skin : no.skin_factor * s_min;
-  std::vector<double> reach(x.size());
-  for (std::size_t p = 0; p < x.size(); ++p) reach[p] = cutoff_radius(sl[p], no.kernel_tolerance) + skin;
-  images_.select(x, reach);
+  // r_c(s) = s sqrt(log(1/tol)) (cutoff_radius), the factor taken once.
+  const double rc_per_s = cutoff_radius(1.0, no.kernel_tolerance);
+  reach_.resize(x.size());
+  for (std::size_t p = 0; p < x.size(); ++p) reach_[p] = sl[p] * rc_per_s + skin;
+  images_.select(x, reach_);
   extend(x, s);
 }
 

@@ -4,6 +4,7 @@
 // is part of the step (src/implicit_stepper.cpp).
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 #include <unordered_map>
 #include <vector>
 
@@ -15,6 +16,18 @@ namespace otfp {
 void ImplicitStepper::reset_history() {
   history_.clear();
   dt1_ = dt2_ = 0.0;
+  previous_history_.clear();
+  can_undo_history_ = false;
+}
+
+void ImplicitStepper::undo_last_history_update() {
+  if (!can_undo_history_)
+    throw std::logic_error("ImplicitStepper::undo_last_history_update: the history's last change was not an accepted step");
+  history_.swap(previous_history_);
+  dt1_ = previous_dt1_;
+  dt2_ = previous_dt2_;
+  previous_history_.clear();
+  can_undo_history_ = false;
 }
 
 ImplicitStepper::HistoryState ImplicitStepper::history_state() const {
@@ -44,6 +57,8 @@ void ImplicitStepper::restore_history(const HistoryState& st) {
   history_ = std::move(map);
   dt1_ = st.dt1;
   dt2_ = st.dt2;
+  previous_history_.clear();
+  can_undo_history_ = false;
 }
 
 // The predictor's start for one particle: the extrapolation `to`, or the

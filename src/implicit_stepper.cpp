@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cmath>
 #include <algorithm>
+#include <stdexcept>
 #include <limits>
 #include <string>
 
@@ -355,6 +356,11 @@ StepSummary ImplicitStepper::step(ParticleSet& particles, double dt, double max_
       particles.reorder(order);
       particles.positions() = std::move(x);
       particles.widths() = std::move(s);
+      // The old history is moved aside, not dropped: undo_last_history_update().
+      previous_history_.swap(history_);
+      previous_dt1_ = dt1_;
+      previous_dt2_ = dt2_;
+      can_undo_history_ = true;
       history_.clear();
       history_.reserve(hist.size());
       for (std::size_t i = 0; i < hist.size(); ++i) history_.emplace(particles.ids()[i], hist[i]);

@@ -109,13 +109,24 @@ void SimulationOptions::validate() const {
 
 // ------------------------------------------------------------------ building
 
+struct Simulation::Saved {
+  ParticleSet particles;
+  Rng rng;
+  SimulationLedger ledger;
+  SimulationTotals totals;
+  BoundaryProjection::State projection;
+  double time = 0.0, dt_next = 0.0;
+  std::int64_t step = 0;
+};
+
 Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> boundary, SimulationOptions options)
     : domain_(std::move(domain)),
       boundary_(std::move(boundary)),
       particles_(domain_ ? domain_->dim() : 3),
       options_(std::move(options)),
       rng_(options_.seed),
-      step_window_(std::make_shared<std::pair<double, double>>(0.0, 0.0)) {
+      step_window_(std::make_shared<std::pair<double, double>>(0.0, 0.0)),
+      saved_(std::make_unique<Saved>()) {
   if (!domain_) throw InvalidArgument("domain: must not be null");
   // The projection and stepper options are checked where they are used, so
   // that their errors carry their stage.
@@ -339,24 +350,17 @@ void Simulation::start(ParticleSet particles, Rng rng, double t0) {
   started_ = true;
 }
 
-struct Simulation::Undo {
-  bool saved = false;  // only when advection or the source changed the state before the solve
-  ParticleSet particles;
-  Rng rng;
-  SimulationLedger ledger;
-};
+bool Simulation::changes_before_solve() const {
+  return options_.velocity.head(domain_->dim()).squaredNorm() > 0.0 || options_.source_rate != 0.0;
+}
 
-// Lines 2-4 of one try over [t0, t1]; the totals count every try.
-SimulationStep Simulation::take_step(double t0, double t1, double max_error, Undo* undo) {
+// Lines 2-4 of one try over [t0, t1]; the totals count every try. Runs
+// inside guarded(): every try starts from the state save_state() took
+// (undo_try() puts back what advection and the source changed).
+SimulationStep Simulation::take_step(double t0, double t1, double max_error) {
   const int dim = domain_->dim();
   const bool advect_on = options_.velocity.head(dim).squaredNorm() > 0.0;
   const double s_rate = options_.source_rate;
-  if (undo && (advect_on || s_rate != 0.0)) {
-    undo->saved = true;
-    undo->particles = particles_;
-    undo->rng = rng_;
-    undo->ledger = ledger_;
-  }
   SimulationStep s;
   s.step = step_ + 1;
   s.t_start = t0;
@@ -389,6 +393,7 @@ SimulationStep Simulation::take_step(double t0, double t1, double max_error, Und
     s.diffusion.dt = h;
   } else if (implicit_) {
     s.diffusion = implicit_->step(particles_, h, max_error);
+    if (s.diffusion.accepted) history_updated_ = true;
   } else {
     s.diffusion = explicit_->step(particles_, h);
   }
@@ -402,12 +407,13 @@ SimulationStep Simulation::take_step(double t0, double t1, double max_error, Und
   return s;
 }
 
-void Simulation::undo_try(Undo& undo) {
-  if (!undo.saved) return;
-  particles_ = std::move(undo.particles);
-  rng_ = undo.rng;
-  ledger_ = undo.ledger;
-  undo.saved = false;
+// A rejected try: the particles, random numbers and ledger the try started
+// from are the step's, in saved_ (the totals keep counting the try).
+void Simulation::undo_try() {
+  if (!changes_before_solve()) return;  // the solve left them as they were
+  particles_ = saved_->particles;
+  rng_ = saved_->rng;
+  ledger_ = saved_->ledger;
 }
 
 // Lines 5-23 and the ledger, after an accepted diffusive step.
@@ -501,30 +507,31 @@ void Simulation::require_started(const char* what) const {
   if (!started_) throw std::logic_error(std::string("Simulation::") + what + ": call start() or load_checkpoint() first");
 }
 
-struct Simulation::Saved {
-  ParticleSet particles;
-  Rng rng;
-  SimulationLedger ledger;
-  SimulationTotals totals;
-  BoundaryProjection::State projection;
-  ImplicitStepper::HistoryState history;
-  double dt_next = 0.0;
-};
-
-Simulation::Saved Simulation::save_state() const {
-  Saved s{particles_, rng_, ledger_, totals_, projection_->state(), {}, dt_next_};
-  if (implicit_) s.history = implicit_->history_state();
-  return s;
+void Simulation::save_state() {
+  Saved& s = *saved_;
+  s.particles = particles_;  // copy assignment: the arrays (and the id map's nodes) are reused
+  s.rng = rng_;
+  s.ledger = ledger_;
+  s.totals = totals_;
+  s.projection = projection_->state();
+  s.time = time_;
+  s.dt_next = dt_next_;
+  s.step = step_;
+  history_updated_ = false;
 }
 
-void Simulation::restore_state(Saved&& s) {
-  particles_ = std::move(s.particles);
+void Simulation::restore_state() {
+  Saved& s = *saved_;
+  std::swap(particles_, s.particles);  // saved_'s copy is taken afresh before the next step
   rng_ = s.rng;
   ledger_ = s.ledger;
   totals_ = s.totals;
   projection_->restore(s.projection);
-  if (implicit_) implicit_->restore_history(s.history);
+  time_ = s.time;
   dt_next_ = s.dt_next;
+  step_ = s.step;
+  if (history_updated_) implicit_->undo_last_history_update();
+  history_updated_ = false;
 }
 
 // Runs one step; whatever fails inside it (the solve, the error test, a
@@ -532,17 +539,17 @@ void Simulation::restore_state(Saved&& s) {
 // state the step started from and reaches the caller as a StepFailure (bad
 // data, e.g. a non-finite flux, stays an InvalidArgument).
 SimulationStep Simulation::guarded(const std::function<SimulationStep()>& body) {
-  Saved pre = save_state();
+  save_state();
   try {
     return body();
   } catch (const StepFailure&) {
-    restore_state(std::move(pre));
+    restore_state();
     throw;
   } catch (const InvalidArgument&) {
-    restore_state(std::move(pre));
+    restore_state();
     throw;
   } catch (const std::exception& e) {
-    restore_state(std::move(pre));
+    restore_state();
     throw StepFailure(format("step {} (t = {}): {}", step_ + 1, time_, e.what()));
   }
 }
@@ -555,10 +562,9 @@ SimulationStep Simulation::advance_to(double t1) {
 
 SimulationStep Simulation::advance_to_impl(double t1) {
   const auto wall0 = Clock::now();
-  Undo undo;
-  SimulationStep s = take_step(time_, t1, std::numeric_limits<double>::infinity(), &undo);
+  SimulationStep s = take_step(time_, t1, std::numeric_limits<double>::infinity());
   if (!s.diffusion.accepted) {
-    undo_try(undo);
+    // guarded() puts back the state (advection and source included).
     throw StepFailure(format("step {} (t = {} -> {}): diffusion step not accepted ({}; {} halvings): {}", s.step,
                                   s.t_start, s.t_end, to_string(s.diffusion.reason), s.diffusion.halvings,
                                   s.diffusion.message));
@@ -588,8 +594,7 @@ SimulationStep Simulation::advance_adaptive_impl(double t_limit) {
   std::int64_t rejections = 0;
   for (;;) {
     const double h = t1 - t0;
-    Undo undo;
-    SimulationStep s = take_step(t0, t1, controller.error_limit(h), &undo);
+    SimulationStep s = take_step(t0, t1, controller.error_limit(h));
     const TimeStepDecision dec = controller.decide(h, s.diffusion.error_estimate, s.diffusion.error_order);
     dt_next_ = dec.dt_next;
     if (s.diffusion.accepted) {
@@ -603,7 +608,7 @@ SimulationStep Simulation::advance_adaptive_impl(double t_limit) {
       s.wall_seconds = std::chrono::duration<double>(Clock::now() - wall0).count();
       return s;
     }
-    undo_try(undo);
+    undo_try();
     if (!s.diffusion.error_rejected)
       throw StepFailure(format("step {} (t = {} -> {}): diffusion step not accepted ({}; {} halvings): {}", s.step,
                                     t0, t1, to_string(s.diffusion.reason), s.diffusion.halvings, s.diffusion.message));

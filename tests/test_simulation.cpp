@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -465,6 +466,228 @@ TEST(Simulation, FailedProjectionRestoresHistoryAndCarries) {
   b->load_checkpoint(saved);
   b->advance(disc.pp.dt_explicit);
   EXPECT_TRUE(same_state(b->particles(), a->particles()));
+  std::filesystem::remove(saved);
+}
+
+namespace {
+
+// Everything a step may change that a caller can read: a failed step must
+// leave all of it as it was, bit for bit.
+struct Observed {
+  ParticleSet particles;
+  SimulationLedger ledger;
+  SimulationTotals totals;
+  BoundaryProjection::State projection;
+  ImplicitStepper::HistoryState history;
+  double time = 0.0, next_dt = 0.0;
+  std::int64_t steps = 0;
+};
+
+Observed observe(Simulation& sim) {
+  Observed o{sim.particles(), sim.ledger(), sim.totals(), sim.projection().state(), {}, sim.time(), sim.next_dt(),
+             sim.step_count()};
+  if (sim.implicit_stepper()) o.history = sim.implicit_stepper()->history_state();
+  return o;
+}
+
+// Plain structs of 8-byte fields (no padding): compared bytewise.
+template <class T>
+bool same_bytes(const T& a, const T& b) {
+  return std::memcmp(&a, &b, sizeof(T)) == 0;
+}
+
+bool same_history(const ImplicitStepper::HistoryState& a, const ImplicitStepper::HistoryState& b) {
+  if (a.dt1 != b.dt1 || a.dt2 != b.dt2 || a.entries.size() != b.entries.size()) return false;
+  for (std::size_t i = 0; i < a.entries.size(); ++i) {
+    const auto &x = a.entries[i], &y = b.entries[i];
+    if (x.id != y.id || x.d1 != y.d1 || x.d2 != y.d2 || x.ds1 != y.ds1 || x.ds2 != y.ds2 || x.count != y.count)
+      return false;
+  }
+  return true;
+}
+
+void expect_unchanged(const Observed& a, const Observed& b) {
+  EXPECT_TRUE(same_state(a.particles, b.particles));
+  EXPECT_TRUE(same_bytes(a.ledger, b.ledger));
+  EXPECT_TRUE(same_bytes(a.totals, b.totals)) << "totals: iterations " << a.totals.iterations << " -> "
+                                              << b.totals.iterations << ", tries rejected "
+                                              << a.totals.error_rejected_steps << " -> " << b.totals.error_rejected_steps;
+  ASSERT_EQ(a.projection.ledger.size(), b.projection.ledger.size());
+  for (std::size_t i = 0; i < a.projection.ledger.size(); ++i)
+    EXPECT_TRUE(same_bytes(a.projection.ledger[i], b.projection.ledger[i])) << "condition " << i;
+  EXPECT_EQ(a.projection.reservoir_carry, b.projection.reservoir_carry);
+  EXPECT_TRUE(same_history(a.history, b.history)) << "history: " << a.history.entries.size() << " -> "
+                                                  << b.history.entries.size() << " entries";
+  EXPECT_EQ(a.time, b.time);
+  EXPECT_EQ(a.next_dt, b.next_dt);
+  EXPECT_EQ(a.steps, b.steps);
+}
+
+}  // namespace
+
+// The paths by which a step can fail, for each kind of step: the state
+// after the failure is the one before it (particles, ledger, totals,
+// projection, the implicit stepper's history, time, step, next dt), and
+// after it the run continues bit for bit as one that never failed.
+// Advection is on, so that every try changes the state before its solve.
+//  - the diffusive step fails (explicit: a non-finite potential);
+//  - the projection fails after an accepted diffusive step (explicit,
+//    implicit BDF2, adaptive BDF2: the history must be put back);
+//  - an adaptive step runs out of tries (BDF2).
+TEST(Simulation, FailedExplicitStepKeepsTheStateAndContinuesBitForBit) {
+  Disc disc(false);
+  disc.options.stepper = StepperKind::Explicit;
+  disc.options.velocity = Vec3(0.3, 0.0, 0.0);
+  disc.options.source_rate = 2.0;
+  const double dt = 0.5 * disc.pp.dt_explicit;
+  auto a = disc.make();
+  auto b = disc.make();
+  a->start(disc.cloud(30, 7));
+  b->start(disc.cloud(30, 7));
+  a->advance(dt);
+  b->advance(dt);
+  const Observed before = observe(*b);
+  b->explicit_stepper()->set_external_potential([](const Vec3&, Vec3* g) {
+    if (g) g->setZero();
+    return std::nan("");
+  });
+  EXPECT_THROW(b->advance(dt), StepFailure);
+  expect_unchanged(before, observe(*b));
+  b->explicit_stepper()->set_external_potential({});
+  a->advance(dt);
+  b->advance(dt);
+  EXPECT_TRUE(same_state(a->particles(), b->particles()));
+  EXPECT_TRUE(same_bytes(a->ledger(), b->ledger()));
+}
+
+TEST(Simulation, FailedProjectionKeepsTheStateOfEveryStepper) {
+  struct Kind {
+    std::string name;
+    StepperKind stepper;
+    bool adaptive;
+  };
+  for (const Kind& kind : {Kind{"explicit", StepperKind::Explicit, false}, Kind{"implicit BDF2", StepperKind::Implicit, false},
+                           Kind{"adaptive BDF2", StepperKind::Implicit, true}}) {
+    SCOPED_TRACE(kind.name);
+    Disc disc(false, TimeScheme::Bdf2);
+    disc.options.stepper = kind.stepper;
+    disc.options.velocity = Vec3(0.05, 0.0, 0.0);
+    disc.options.time_control.dt_min = 0.01 * disc.pp.dt_explicit;
+    const double dt = 0.5 * disc.pp.dt_explicit;
+    const double g = 1.0 / disc.domain->volume();
+    auto step = [&](Simulation& s) { return kind.adaptive ? s.advance_adaptive(1e9) : s.advance(dt); };
+    // Run a: three steps. Run b: two; then, in a Simulation with a limit at
+    // b's particle count, the third step fails in the projection (after an
+    // accepted diffusive step); then b takes it from what the failure left.
+    auto a = disc_with_data(disc, PatchKind::Dirichlet, g);
+    auto b = disc_with_data(disc, PatchKind::Dirichlet, g);
+    for (Simulation* s : {a.get(), b.get()}) {
+      s->start(disc.cloud(40, 9));
+      s->set_next_dt(dt);
+      step(*s);
+      step(*s);
+    }
+    const auto saved = temp_file("projection_" + std::to_string(static_cast<int>(kind.adaptive)) + ".ckpt");
+    b->save_checkpoint(saved);
+    Disc tight = disc;
+    tight.options.max_particles = static_cast<std::int64_t>(b->particles().size());
+    auto c = disc_with_data(tight, PatchKind::Dirichlet, g);
+    c->load_checkpoint(saved);
+    const Observed before = observe(*c);
+    if (kind.stepper == StepperKind::Implicit) {
+      ASSERT_GT(before.history.entries.size(), 0u);
+    }
+    try {
+      step(*c);
+      ADD_FAILURE() << "the step did not fail";
+    } catch (const StepFailure& e) {
+      EXPECT_NE(std::string(e.what()).find("dirichlet patch 0"), std::string::npos) << e.what();
+    }
+    expect_unchanged(before, observe(*c));
+    c->save_checkpoint(saved);
+    b->load_checkpoint(saved);
+    step(*a);
+    step(*b);
+    EXPECT_TRUE(same_state(a->particles(), b->particles()));
+    if (kind.stepper == StepperKind::Implicit) {
+      EXPECT_TRUE(same_history(a->implicit_stepper()->history_state(), b->implicit_stepper()->history_state()));
+    }
+    EXPECT_EQ(a->next_dt(), b->next_dt());
+    std::filesystem::remove(saved);
+  }
+}
+
+TEST(Simulation, AdaptiveStepOutOfTriesKeepsTheState) {
+  Disc disc(false, TimeScheme::Bdf2);
+  disc.options.velocity = Vec3(0.05, 0.0, 0.0);
+  disc.options.time_control.dt_min = 1e-6 * disc.pp.dt_explicit;
+  const double dt = 0.5 * disc.pp.dt_explicit;
+  const double g = 1.0 / disc.domain->volume();
+  auto a = disc_with_data(disc, PatchKind::Dirichlet, g);
+  auto b = disc_with_data(disc, PatchKind::Dirichlet, g);
+  for (Simulation* s : {a.get(), b.get()}) {
+    s->start(disc.cloud(40, 9));
+    s->set_next_dt(dt);
+    s->advance_adaptive(1e9);
+    s->advance_adaptive(1e9);
+  }
+  const auto saved = temp_file("tries.ckpt");
+  b->save_checkpoint(saved);
+  // A controller no try can satisfy, and two retries allowed.
+  Disc strict = disc;
+  strict.options.time_control.tolerance = 1e-300;
+  strict.options.max_error_rejections = 2;
+  auto c = disc_with_data(strict, PatchKind::Dirichlet, g);
+  c->load_checkpoint(saved);
+  const Observed before = observe(*c);
+  try {
+    c->advance_adaptive(1e9);
+    ADD_FAILURE() << "the step did not fail";
+  } catch (const StepFailure& e) {
+    EXPECT_NE(std::string(e.what()).find("3 tries rejected"), std::string::npos) << e.what();
+  }
+  expect_unchanged(before, observe(*c));
+  c->save_checkpoint(saved);
+  b->load_checkpoint(saved);
+  a->advance_adaptive(1e9);
+  b->advance_adaptive(1e9);
+  EXPECT_TRUE(same_state(a->particles(), b->particles()));
+  EXPECT_TRUE(same_history(a->implicit_stepper()->history_state(), b->implicit_stepper()->history_state()));
+  std::filesystem::remove(saved);
+}
+
+// A try rejected by the error test is undone (advection, the source's
+// particles and random numbers, its ledger counts) before the next: the
+// accepted try equals the same step tried first, bit for bit.
+TEST(Simulation, AdaptiveRetryStartsFromTheStepsState) {
+  Disc disc(false, TimeScheme::Bdf2);
+  disc.options.velocity = Vec3(0.05, 0.0, 0.0);
+  disc.options.source_rate = 0.5;
+  disc.options.time_control.dt_min = 1e-3 * disc.pp.dt_explicit;
+  const double dt = 0.5 * disc.pp.dt_explicit;
+  const double g = 1.0 / disc.domain->volume();
+  auto a = disc_with_data(disc, PatchKind::Dirichlet, g);
+  a->start(disc.cloud(40, 9));
+  a->set_next_dt(dt);
+  a->advance_adaptive(1e9);
+  a->advance_adaptive(1e9);
+  const auto saved = temp_file("retry.ckpt");
+  a->save_checkpoint(saved);
+  a->set_next_dt(50.0 * dt);
+  const SimulationStep sa = a->advance_adaptive(1e9);
+  ASSERT_GT(sa.error_rejections, 0);
+  auto b = disc_with_data(disc, PatchKind::Dirichlet, g);
+  b->load_checkpoint(saved);
+  b->set_next_dt(sa.t_end - sa.t_start);
+  const SimulationStep sb = b->advance_adaptive(1e9);
+  EXPECT_EQ(sb.error_rejections, 0);
+  EXPECT_EQ(sb.t_end, sa.t_end);
+  EXPECT_TRUE(same_state(a->particles(), b->particles()));
+  EXPECT_TRUE(same_bytes(a->ledger(), b->ledger()));
+  // The random numbers too: the next steps (source and projection) agree.
+  a->advance_adaptive(1e9);
+  b->advance_adaptive(1e9);
+  EXPECT_TRUE(same_state(a->particles(), b->particles()));
   std::filesystem::remove(saved);
 }
 

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <stdexcept>
 #include <cstdio>
 #include <cstdlib>
 #include <limits>
@@ -477,6 +478,44 @@ TEST(TimeStepController, RejectedStepLeavesStateAndHistory) {
   EXPECT_TRUE(retry.accepted);
   EXPECT_LE(retry.error_estimate, 1e-4);
   EXPECT_LT(retry.dt, 0.8);
+}
+
+// undo_last_history_update() puts back the history and step sizes of before
+// the last accepted step (what Simulation does when its projection fails
+// after the diffusive step), once; a rejected step does not count as one.
+TEST(ImplicitStepper, UndoLastHistoryUpdatePutsBackTheHistoryOnce) {
+  auto same = [](const ImplicitStepper::HistoryState& a, const ImplicitStepper::HistoryState& b) {
+    if (a.dt1 != b.dt1 || a.dt2 != b.dt2 || a.entries.size() != b.entries.size()) return false;
+    for (std::size_t i = 0; i < a.entries.size(); ++i)
+      if (a.entries[i].id != b.entries[i].id || a.entries[i].d1 != b.entries[i].d1 ||
+          a.entries[i].d2 != b.entries[i].d2 || a.entries[i].count != b.entries[i].count)
+        return false;
+    return true;
+  };
+  ImplicitStepper st = harmonic_stepper(TimeScheme::Bdf2);
+  ParticleSet ps = isolated_blobs();
+  EXPECT_THROW(st.undo_last_history_update(), std::logic_error) << "no step yet";
+  for (int k = 0; k < 2; ++k) ASSERT_TRUE(st.step(ps, 0.05).accepted);
+  const ImplicitStepper::HistoryState before = st.history_state();
+  ASSERT_TRUE(st.step(ps, 0.07).accepted);
+  EXPECT_FALSE(same(st.history_state(), before));
+  st.undo_last_history_update();
+  EXPECT_TRUE(same(st.history_state(), before));
+  EXPECT_EQ(st.previous_dt(), 0.05);
+  EXPECT_THROW(st.undo_last_history_update(), std::logic_error) << "only once";
+  // A step rejected by the error test changes nothing and is not undone.
+  ASSERT_TRUE(st.step(ps, 0.05).accepted);
+  const ImplicitStepper::HistoryState after_one = st.history_state();
+  EXPECT_FALSE(st.step(ps, 0.8, 1e-12).accepted);
+  EXPECT_TRUE(same(st.history_state(), after_one));
+  st.undo_last_history_update();  // the accepted step before it
+  EXPECT_TRUE(same(st.history_state(), before));
+  ASSERT_TRUE(st.step(ps, 0.05).accepted);
+  st.reset_history();
+  EXPECT_THROW(st.undo_last_history_update(), std::logic_error) << "after reset_history()";
+  ASSERT_TRUE(st.step(ps, 0.05).accepted);
+  st.restore_history(before);
+  EXPECT_THROW(st.undo_last_history_update(), std::logic_error) << "after restore_history()";
 }
 
 // Adaptive BDF2 on x' = -k x: the global error at T falls with the tolerance

@@ -163,7 +163,7 @@ class Functional {
   // number of particles the list was built for.
   WallImages images_;
   std::vector<Vec3> x_ext_, grad_image_;
-  std::vector<double> s_ext_, m_ext_;
+  std::vector<double> s_ext_, m_ext_, reach_;
   std::size_t images_built_for_ = 0;
   void extend(const std::vector<Vec3>& x, const std::vector<double>& s);
   void select_images(const std::vector<Vec3>& x, const std::vector<double>& s);  // chooses images, then extend()

@@ -16,6 +16,7 @@
 // (2R - r)/r = 1 + O(depth / R): the image density of a uniform layer is off
 // by O(s / R) within a blob width s of the wall (tested in test_images.cpp).
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -34,8 +35,15 @@ class MirrorWall {
   virtual ~MirrorWall() = default;
   // Signed distance to the wall surface, < 0 on the domain side.
   virtual double distance(const Vec3& x) const = 0;
+  // d[i] = distance(x[i]) for i < n, bit for bit: one call for a block of
+  // points (WallImages::select). The default calls distance(); the walls
+  // made below override it with a loop the compiler can inline.
+  virtual void distances(const Vec3* x, std::size_t n, double* d) const;
   // Mirror image of x and, if jacobian is not null, d(image)/dx.
   virtual Vec3 reflect(const Vec3& x, Mat3* jacobian) const = 0;
+  // WallImages::select calls distance() and distances() from several
+  // threads at once: they must not change the wall (nor throw, ideally; an
+  // exception is passed on after the threads have finished).
 };
 using MirrorWallPtr = std::shared_ptr<const MirrorWall>;
 
@@ -82,6 +90,13 @@ class WallImages {
   // (up to max_order, composed) with sum over S of depth_w^2 <= reach[p]^2.
   // reach[p] should be the particle's list radius r_c(s_p) + skin: farther in,
   // its image is beyond the cut-off of every point on the domain side.
+  // Images are listed by source particle, then by subset (the nonempty
+  // subsets of the first 16 nearby walls, in increasing wall order as binary
+  // counting gives them). Parallel (OpenMP): each thread takes a run of
+  // blocks of 256 particles, computes a block's distances to each wall in
+  // one call (vectorised), skips the particles within no wall's reach and
+  // lists the images of the others; the lists are joined in particle order,
+  // so the result does not depend on the number of threads.
   void select(const std::vector<Vec3>& x, const std::vector<double>& reach);
   // Number of images chosen by the last select().
   std::size_t size() const { return source_.size(); }
@@ -94,11 +109,23 @@ class WallImages {
 
  private:
   Vec3 image(std::size_t i, const Vec3& x, Mat3* jacobian) const;
+  // select()'s images of one thread, in particle order, and its scratch for
+  // a block's distances to every wall (kept: no allocation per call).
+  struct SelectBuffer {
+    std::vector<std::uint32_t> source;
+    std::vector<std::uint8_t> order;
+    std::vector<std::array<std::uint8_t, 3>> chain;
+    std::vector<double> distance;
+  };
+  // select() for the particles of block b: appends their images to out.
+  void select_block(const std::vector<Vec3>& x, const std::vector<double>& reach, std::size_t b,
+                    SelectBuffer& out) const;
   std::vector<MirrorWallPtr> walls_;
   int max_order_ = 3;
   std::vector<std::uint32_t> source_;
   std::vector<std::uint8_t> order_;                 // walls composed per image (1 ... max_order)
   std::vector<std::array<std::uint8_t, 3>> chain_;  // wall indices, applied first to last
+  std::vector<SelectBuffer> buffers_;               // select(): one per thread
 };
 
 }  // namespace otfp

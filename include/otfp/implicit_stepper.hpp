@@ -74,6 +74,13 @@ class ImplicitStepper {
   };
   HistoryState history_state() const;
   void restore_history(const HistoryState& state);  // throws InvalidArgument for a bad entry
+  // Puts back the history (and the last two step sizes) of before the last
+  // accepted step(), in O(1): an accepted step moves the old history aside
+  // instead of dropping it. For a caller whose own step failed after the
+  // diffusive one was accepted (Simulation: the projection or the ledger).
+  // Throws std::logic_error unless the history's last change was an accepted
+  // step() (not reset_history(), restore_history() or an earlier undo).
+  void undo_last_history_update();
   // Where the predictor (options().predictor, or Extrapolate if None) would
   // start a step of length dt, in the order of `particles`: e.g.
   // x + (dt / dt_{k-1}) (x^k - x^{k-1}), pulled back towards x where that would
@@ -123,6 +130,10 @@ class ImplicitStepper {
   ExternalPotential external_;
   std::unordered_map<ParticleId, History> history_;
   double dt1_ = 0.0, dt2_ = 0.0;  // the last two step sizes (0: none)
+  // The history before the last accepted step (undo_last_history_update()).
+  std::unordered_map<ParticleId, History> previous_history_;
+  double previous_dt1_ = 0.0, previous_dt2_ = 0.0;
+  bool can_undo_history_ = false;
 };
 
 }  // namespace otfp

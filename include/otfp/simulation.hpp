@@ -275,15 +275,19 @@ class Simulation {
   static std::string checkpoint_extra(const std::filesystem::path& path);
 
  private:
-  struct Undo;
-  struct Saved;  // the whole state a step may change (a failed step puts it back)
-  Saved save_state() const;
-  void restore_state(Saved&& saved);
+  // The state a step may change, taken before each step into arrays kept
+  // from step to step (no allocation once they are large enough); a failed
+  // step swaps it back. The implicit stepper's history is not copied: the
+  // stepper keeps the one an accepted step replaced.
+  struct Saved;
+  void save_state();
+  void restore_state();
   SimulationStep guarded(const std::function<SimulationStep()>& body);
   SimulationStep advance_to_impl(double t_end);
   SimulationStep advance_adaptive_impl(double t_limit);
-  SimulationStep take_step(double t0, double t1, double max_error, Undo* undo);
-  void undo_try(Undo& undo);
+  bool changes_before_solve() const;  // advection or a source: take_step changes the state before the solve
+  SimulationStep take_step(double t0, double t1, double max_error);
+  void undo_try();
   void finish_step(SimulationStep& step);
   void check_ledger(std::int64_t step, double t) const;
   void require_started(const char* what) const;
@@ -310,6 +314,8 @@ class Simulation {
   SimulationLedger ledger_;
   SimulationTotals totals_;
   SimulationStep initial_;
+  std::unique_ptr<Saved> saved_;
+  bool history_updated_ = false;  // this step's diffusive step was accepted by the implicit stepper
 };
 
 }  // namespace otfp
