@@ -618,3 +618,46 @@ TEST(FreeSpace, HasNoBoundaryAndTheBoxVolume) {
   EXPECT_THROW(d->patch_area(0), otfp::InvalidArgument);
   EXPECT_THROW(otfp::make_free_space(4, otfp::Vec3::Zero(), otfp::Vec3::Ones()), otfp::InvalidArgument);
 }
+
+// The square pipe with an obstacle against the CSG difference of a box and a
+// cylinder (disc in 2-D), an independent construction: the same inside and
+// outside, the same signed distance inside Omega (where the CSG one is exact),
+// and patches, volume and areas by their formulas.
+TEST(SquarePipeObstacle, AgreesWithTheBoxMinusCylinder) {
+  using otfp::Vec3;
+  for (int dim : {2, 3}) {
+    const Vec3 lo(0.0, 0.0, 0.0), hi(4.0, 1.0, dim == 3 ? 1.0 : 0.0), c(1.5, 0.5, 0.5);
+    const double r = 0.3;
+    const otfp::DomainPtr pipe = otfp::make_square_pipe_obstacle(dim, lo, hi, 2, c, r);
+    const otfp::DomainPtr box = otfp::make_box(dim, lo, hi);
+    const otfp::DomainPtr obstacle =
+        dim == 3 ? otfp::make_cylinder(Vec3(1.5, 0.5, -1.0), Vec3(1.5, 0.5, 2.0), r) : otfp::make_ball(2, c, r);
+    const otfp::DomainPtr csg = otfp::make_difference(box, obstacle);
+    ASSERT_EQ(pipe->num_patches(), 2 * dim + 1);
+    EXPECT_EQ(pipe->patch_name(2 * dim), "obstacle");
+    const double height = 1.0;  // the z extent in 3-D; a unit height in 2-D
+    EXPECT_NEAR(pipe->volume(), 4.0 * 1.0 * height - std::numbers::pi * r * r * height, 1e-12);
+    EXPECT_NEAR(pipe->patch_area(2 * dim), 2.0 * std::numbers::pi * r * height, 1e-12);
+    otfp::Rng rng(7);
+    int inside = 0;
+    for (int i = 0; i < 4000; ++i) {
+      Vec3 x = Vec3::Zero();
+      for (int k = 0; k < dim; ++k) x[k] = rng.uniform(lo[k] - 0.3, hi[k] + 0.3);
+      const otfp::BoundaryQuery q = pipe->query(x), e = csg->query(x);
+      ASSERT_EQ(q.signed_distance <= 0.0, e.signed_distance <= 0.0) << x.transpose();
+      if (q.signed_distance <= 0.0) {
+        ++inside;
+        EXPECT_NEAR(q.signed_distance, e.signed_distance, 1e-12) << x.transpose();
+        EXPECT_NEAR((q.closest_point - x).norm(), -q.signed_distance, 1e-12);
+      } else {
+        // Outside: exact, so never below the CSG lower bound, and its closest point is on the boundary.
+        EXPECT_GE(q.signed_distance, e.signed_distance - 1e-12) << x.transpose();
+        EXPECT_NEAR((q.closest_point - x).norm(), q.signed_distance, 1e-12);
+        EXPECT_NEAR(pipe->query(q.closest_point).signed_distance, 0.0, 1e-12);
+      }
+    }
+    EXPECT_GT(inside, 1000);
+  }
+  EXPECT_THROW(otfp::make_square_pipe_obstacle(3, Vec3::Zero(), Vec3::Ones(), 2, Vec3(0.5, 0.5, 0.5), 0.6),
+               otfp::InvalidArgument);  // the obstacle reaches the walls
+}

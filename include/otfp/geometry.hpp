@@ -108,6 +108,13 @@ DomainPtr make_box(int dim, const Vec3& lo, const Vec3& hi);
 DomainPtr make_cylinder(const Vec3& a, const Vec3& b, double radius);
 // Periodic box [lo, hi) in d dimensions; no boundary and no patches.
 DomainPtr make_periodic_box(int dim, const Vec3& lo, const Vec3& hi);
+// Box [lo, hi] minus a cylinder of radius r across it, its axis along
+// `axis` (0, 1, 2; ignored in 2-D, where the obstacle is a disc) through
+// obstacle_center: a pipe with an obstacle. Patches: the box faces 0 .. 2d-1
+// ("x-", "x+", ...), then "obstacle". The signed distance is exact on both
+// sides (make_difference's is a lower bound outside).
+DomainPtr make_square_pipe_obstacle(int dim, const Vec3& lo, const Vec3& hi, int axis, const Vec3& obstacle_center,
+                                    double radius);
 // Unbounded space (free diffusion): no boundary and no patches; the box
 // [lo, hi] serves an initial uniform fill and the spacing rule (its volume).
 DomainPtr make_free_space(int dim, const Vec3& lo, const Vec3& hi);

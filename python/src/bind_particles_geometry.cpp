@@ -201,6 +201,12 @@ void bind_particles_geometry(py::module_& m) {
   m.def("make_periodic_box",
         [](int dim, const Vec3& lo, const Vec3& hi) { return mutable_domain(make_periodic_box(dim, lo, hi)); },
         py::arg("dim"), py::arg("lo"), py::arg("hi"));
+  m.def("make_square_pipe_obstacle",
+        [](int dim, const Vec3& lo, const Vec3& hi, int axis, const Vec3& c, double r) {
+          return mutable_domain(make_square_pipe_obstacle(dim, lo, hi, axis, c, r));
+        },
+        py::arg("dim"), py::arg("lo"), py::arg("hi"), py::arg("axis"), py::arg("obstacle_center"), py::arg("radius"),
+        "Box minus a cylinder across it (a disc in 2-D): faces x-, x+, ..., then \"obstacle\".");
   m.def("make_free_space",
         [](int dim, const Vec3& lo, const Vec3& hi) { return mutable_domain(make_free_space(dim, lo, hi)); },
         py::arg("dim"), py::arg("lo"), py::arg("hi"),
