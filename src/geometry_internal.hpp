@@ -29,6 +29,16 @@ inline void check_point(const Vec3& x, const std::string& field) {
   require(x.allFinite(), field, x.norm(), "must be finite");
 }
 
+// A box [lo, hi] of a domain called `what`: finite corners, lo < hi on each used axis.
+inline void check_box(const Vec3& lo, const Vec3& hi, int dim, const std::string& what) {
+  check_point(lo, what + " lo");
+  check_point(hi, what + " hi");
+  static const char* kAxis[3] = {"x", "y", "z"};
+  for (int k = 0; k < dim; ++k)
+    require(lo[k] < hi[k], what + " hi." + kAxis[k], hi[k],
+            "must be > lo." + std::string(kAxis[k]) + " = " + std::to_string(lo[k]));
+}
+
 inline void check_patch(const Domain& d, int patch) {
   require(patch >= 0 && patch < d.num_patches(), "patch", patch,
           "must be in [0, " + std::to_string(d.num_patches()) + ")");

@@ -28,13 +28,8 @@ class SquarePipeObstacle final : public Domain {
   SquarePipeObstacle(int dim, const Vec3& lo, const Vec3& hi, int axis, const Vec3& c, double r)
       : dim_(dim), lo_(project(lo, dim)), hi_(project(hi, dim)), axis_(dim == 3 ? axis : -1), c_(project(c, dim)), r_(r) {
     require(dim == 2 || dim == 3, "square pipe dim", dim, "must be 2 or 3");
-    check_point(lo, "square pipe lo");
-    check_point(hi, "square pipe hi");
+    check_box(lo, hi, dim, "square pipe");
     check_point(c, "square pipe obstacle centre");
-    static const char* kAxis[3] = {"x", "y", "z"};
-    for (int k = 0; k < dim; ++k)
-      require(lo[k] < hi[k], std::string("square pipe hi.") + kAxis[k], hi[k],
-              "must be > lo." + std::string(kAxis[k]) + " = " + std::to_string(lo[k]));
     require(dim == 2 || (axis >= 0 && axis <= 2), "square pipe obstacle axis", axis, "must be 0, 1 or 2");
     double clearance = std::numeric_limits<double>::infinity();
     for (int k = 0; k < dim; ++k)

@@ -116,12 +116,7 @@ class Box final : public Domain {
  public:
   Box(int dim, const Vec3& lo, const Vec3& hi) : dim_(dim), lo_(project(lo, dim)), hi_(project(hi, dim)) {
     check_dim(dim);
-    check_point(lo, "box lo");
-    check_point(hi, "box hi");
-    static const char* kAxis[3] = {"x", "y", "z"};
-    for (int k = 0; k < dim; ++k)
-      require(lo[k] < hi[k], std::string("box hi.") + kAxis[k], hi[k],
-              "must be > lo." + std::string(kAxis[k]) + " = " + std::to_string(lo[k]));
+    check_box(lo, hi, dim, "box");
     for (int f = 0; f < 2 * dim_; ++f) {
       const int k = f / 2;
       const Vec3 e = Vec3::Unit(k);
@@ -435,8 +430,7 @@ class FreeSpace final : public Domain {
  public:
   FreeSpace(int dim, const Vec3& lo, const Vec3& hi) : dim_(dim), box_{project(lo, dim), project(hi, dim)} {
     check_dim(dim);
-    check_point(lo, "free space lo");
-    check_point(hi, "free space hi");
+    check_box(lo, hi, dim, "free space");
   }
   int dim() const override { return dim_; }
   BoundaryQuery query(const Vec3& x) const override { return no_boundary(x); }
@@ -459,12 +453,7 @@ class PeriodicBox final : public Domain {
  public:
   PeriodicBox(int dim, const Vec3& lo, const Vec3& hi) : dim_(dim), lo_(project(lo, dim)), hi_(project(hi, dim)) {
     check_dim(dim);
-    check_point(lo, "periodic box lo");
-    check_point(hi, "periodic box hi");
-    static const char* kAxis[3] = {"x", "y", "z"};
-    for (int k = 0; k < dim; ++k)
-      require(lo[k] < hi[k], std::string("periodic box hi.") + kAxis[k], hi[k],
-              "must be > lo." + std::string(kAxis[k]) + " = " + std::to_string(lo[k]));
+    check_box(lo, hi, dim, "periodic box");
   }
 
   int dim() const override { return dim_; }
