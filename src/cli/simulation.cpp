@@ -7,6 +7,7 @@
 #include <fmt/ranges.h>
 
 #include <algorithm>
+#include <cctype>
 #include <charconv>
 #include <chrono>
 #include <cmath>
@@ -19,7 +20,6 @@
 #include <map>
 #include <numbers>
 #include <optional>
-#include <regex>
 
 #include "domain_setup.hpp"
 #include "otfp/barrier.hpp"
@@ -290,6 +290,21 @@ RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded
   return o;
 }
 
+// `text` with each whole word `name` (not part of a longer identifier)
+// prefixed by `section`.
+std::string with_keys(const std::string& text, const std::string& name, const std::string& section) {
+  auto word = [](char ch) { return std::isalnum(static_cast<unsigned char>(ch)) || ch == '_' || ch == '.'; };
+  std::string out;
+  std::size_t at = 0;
+  for (std::size_t i = text.find(name); i != std::string::npos; i = text.find(name, i + name.size())) {
+    const bool starts = i == 0 || !word(text[i - 1]), ends = i + name.size() == text.size() || !word(text[i + name.size()]);
+    if (!(starts && ends)) continue;
+    out += text.substr(at, i - at) + section + name;
+    at = i + name.size();
+  }
+  return out + text.substr(at);
+}
+
 // An InvalidArgument of run_parameters() ("<field> = <value>: <rule>") as a
 // ConfigError naming the configuration key of the field.
 [[noreturn]] void throw_keyed(const InvalidArgument& e) {
@@ -319,12 +334,9 @@ RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded
     if (what.rfind(field + " = ", 0) == 0) {
       // The rule may name other fields: those of the step and the barrier by their keys as well.
       std::string rule = what.substr(field.size());
-      for (const char* name : {"kappa", "t_end", "dt_factor", "barrier_factor"})
-        rule = std::regex_replace(rule, std::regex(std::string("\\b") + name + "\\b"),
-                                  std::string(name == std::string("kappa")            ? "physics."
-                                              : name == std::string("barrier_factor") ? "solver."
-                                                                                      : "run.") +
-                                      name);
+      for (const auto& [name, section] : {std::pair<std::string, std::string>{"kappa", "physics."},
+                                          {"t_end", "run."}, {"dt_factor", "run."}, {"barrier_factor", "solver."}})
+        rule = with_keys(rule, name, section);
       throw ConfigError(key, key + rule);
     }
   throw ConfigError("particles", std::string("particles: ") + what);
