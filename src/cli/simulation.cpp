@@ -38,6 +38,7 @@
 #include "otfp/simulation.hpp"
 #include "otfp/stepper.hpp"
 #include "otfp/time_step_control.hpp"
+#include "otfp_app/series_columns.hpp"
 #include "otfp_app/writers.hpp"
 
 #ifndef OTFP_APP_VERSION
@@ -877,29 +878,18 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
   std::vector<std::pair<double, std::string>> snapshots;
   std::int64_t last_snapshot = -1;
 
-  // Column layout of series.csv (fixed by the configuration, not by the run).
-  const bool has_j_ratio = d.J_inf.has_value();
   // The analytic reference: its columns, rows, error statistics and state (docs/outputs.md).
   const std::unique_ptr<Reference> reference = configured_reference(c, d);
-  const std::vector<std::string> ref_columns = reference ? reference->columns() : std::vector<std::string>{};
-  std::string header =
-      "step,t,dt,n_particles,mass_total,mass_inside,polar_inertia,inserted,removed,energy,iterations,evaluations,"
-      "mass_with_layer,polar_inertia_with_layer,polar_inertia_total,n_inside,n_buffer,n_outside,inserted_total,"
-      "removed_total,transport,entropy,barrier,residual_displacement,list_builds,halvings,error_estimate,rejected_steps,"
-      "mean_age,max_age,l1_mass,"
-      "l1_polar_inertia,mass_ratio";
-  if (has_j_ratio) header += ",polar_inertia_ratio";
-  header += ",mass_blob,mass_blob_ratio";
+  // Column layout of series.csv (fixed by the configuration, not by the run).
+  const SeriesLayout layout(d.J_inf.has_value(), reference && reference->has_mass_blob_error(),
+                            reference ? reference->columns() : std::vector<std::string>{});
+  const std::string& header = layout.header();
   // Closed forms cost ~0.1 us per particle (disc and cylinder ~3 us near the
   // wall); the quadrature path (square_pipe_obstacle) runs 4 x 4 normal lines
   // per blob near a wall instead of the library's 10 x 10 (6x cheaper, about
   // 1e-3 of the near-wall blob mass either way, docs/outputs.md).
   BlobMassOptions blob_options;
   blob_options.hermite_nodes = 4;
-  // M_rho / M_inf against the mass reference (summary.json reference.mass_blob).
-  if (reference && reference->has_mass_blob_error()) header += ",error_mass_blob";
-  for (const std::string& col : ref_columns) header += "," + col;
-  header += "\n";
 
   std::int64_t n0 = 0;
   double M0 = 0.0;
@@ -981,60 +971,6 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
     return r;
   };
 
-  auto csv_row = [&](const StepRecord& r) {
-    std::string line;
-    auto num = [&](double v, const char* name) {
-      if (!std::isfinite(v))
-        throw RunError(fmt::format("non-finite {} = {} at step {} (t = {}); nothing non-finite is written", name, v,
-                                   r.step, r.t));
-      line += fmt::format("{},", v);
-    };
-    auto integer = [&](std::int64_t v) { line += fmt::format("{},", v); };
-    integer(r.step);
-    num(r.t, "t");
-    num(r.dt, "dt");
-    integer(r.n_particles);
-    num(r.mass_total, "mass_total");
-    num(r.mass_inside, "mass_inside");
-    num(r.polar_inertia, "polar_inertia");
-    integer(r.inserted);
-    integer(r.removed);
-    num(r.energy, "energy");
-    integer(r.iterations);
-    integer(r.evaluations);
-    num(r.mass_with_layer, "mass_with_layer");
-    num(r.polar_inertia_with_layer, "polar_inertia_with_layer");
-    num(r.polar_inertia_total, "polar_inertia_total");
-    integer(r.n_inside);
-    integer(r.n_buffer);
-    integer(r.n_outside);
-    integer(r.inserted_total);
-    integer(r.removed_total);
-    num(r.transport, "transport");
-    num(r.entropy, "entropy");
-    num(r.barrier, "barrier");
-    num(r.residual_displacement, "residual_displacement");
-    integer(r.list_builds);
-    integer(r.halvings);
-    if (r.error_estimate)
-      num(*r.error_estimate, "error_estimate");
-    else
-      line += ",";  // no estimate (first steps, explicit steppers): empty
-    integer(r.rejected_steps);
-    num(r.mean_age, "mean_age");
-    num(r.max_age, "max_age");
-    num(r.l1_mass, "l1_mass");
-    num(r.l1_polar_inertia, "l1_polar_inertia");
-    num(r.mass_ratio, "mass_ratio");
-    if (has_j_ratio) num(*r.polar_inertia_ratio, "polar_inertia_ratio");
-    num(r.mass_blob, "mass_blob");
-    num(r.mass_blob_ratio, "mass_blob_ratio");
-    if (r.error_mass_blob) num(*r.error_mass_blob, "error_mass_blob");
-    for (std::size_t i = 0; i < r.reference_values.size(); ++i) num(r.reference_values[i], ref_columns[i].c_str());
-    line.back() = '\n';
-    return line;
-  };
-
   auto snapshot = [&](const StepRecord& r) {
     if (!write || last_snapshot == r.step) return;
     for (const Vec3& x : particles.positions())
@@ -1094,24 +1030,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
     j["seed"] = c.run.seed;
     j["wall_seconds"] = wall();
     j["threads"] = omp_get_max_threads();
-    j["final"] = {{"step", last.step},
-                  {"t", last.t},
-                  {"n_particles", last.n_particles},
-                  {"n_inside", last.n_inside},
-                  {"n_buffer", last.n_buffer},
-                  {"n_outside", last.n_outside},
-                  {"mass_total", last.mass_total},
-                  {"mass_inside", last.mass_inside},
-                  {"mass_with_layer", last.mass_with_layer},
-                  {"polar_inertia", last.polar_inertia},
-                  {"polar_inertia_with_layer", last.polar_inertia_with_layer},
-                  {"polar_inertia_total", last.polar_inertia_total},
-                  {"mass_ratio", last.mass_ratio},
-                  {"mass_blob", last.mass_blob},
-                  {"mass_blob_ratio", last.mass_blob_ratio},
-                  {"polar_inertia_ratio", opt(last.polar_inertia_ratio)},
-                  {"mean_age", last.mean_age},
-                  {"max_age", last.max_age}};
+    j["final"] = final_json(last);
     j["l1"] = {{"rule_series", "rectangle sum over k = 0..K of the value at t_k times dt, all particles (46) as printed"},
                {"mass_rectangle", last.l1_mass},
                {"polar_inertia_rectangle", last.l1_polar_inertia},
@@ -1215,7 +1134,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
   };
   try {
     auto emit = [&](const StepRecord& r, bool final_row) {
-      const std::string line = csv_row(r);
+      const std::string line = layout.row(r);
       if (write) {
         // A row is in both files or in neither (a full disk fails either write).
         const std::uint64_t series_size = series_file.size();
