@@ -1,0 +1,119 @@
+// The one table of series.csv's columns (otfp_app/series_columns.hpp): the
+// docs list exactly its columns, and it gives the header, the rows and
+// summary.json's "final".
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "otfp_app/series_columns.hpp"
+
+namespace {
+
+using otfp::app::ColumnKind;
+using otfp::app::ColumnWhen;
+using otfp::app::SeriesLayout;
+using otfp::app::StepRecord;
+using otfp::app::series_columns;
+
+// The first cells of the `| column | unit | meaning |` table of the
+// "## `series.csv`" section of docs/outputs.md, backticks removed.
+std::vector<std::string> documented_series_columns() {
+  const std::filesystem::path file = std::filesystem::path(OTFP_SOURCE_DIR) / "docs" / "outputs.md";
+  std::ifstream in(file);
+  EXPECT_TRUE(in) << file;
+  std::string line;
+  bool section = false, table = false;
+  std::vector<std::string> names;
+  while (std::getline(in, line)) {
+    if (line.rfind("## ", 0) == 0) {
+      if (section) break;
+      section = line == "## `series.csv`";
+      continue;
+    }
+    if (!section) continue;
+    if (!table) {
+      table = line.rfind("| column |", 0) == 0;
+      continue;
+    }
+    if (line.rfind("|---", 0) == 0) continue;
+    if (line.rfind("| ", 0) != 0) break;  // the end of the table
+    const std::string cell = line.substr(2, line.find(" |", 2) - 2);
+    EXPECT_TRUE(cell.size() > 2 && cell.front() == '`' && cell.back() == '`') << line;
+    names.push_back(cell.substr(1, cell.size() - 2));
+  }
+  return names;
+}
+
+TEST(OutputSchema, DocsListExactlyTheColumnsOfTheTable) {
+  std::vector<std::string> table;
+  for (const auto& c : series_columns()) table.push_back(c.name);
+  EXPECT_EQ(documented_series_columns(), table);
+}
+
+TEST(OutputSchema, EveryColumnHasOneGetterOfItsKindAndAMeaning) {
+  std::set<std::string> names;
+  for (const auto& c : series_columns()) {
+    EXPECT_TRUE(names.insert(c.name).second) << c.name;
+    EXPECT_FALSE(std::string(c.meaning).empty()) << c.name;
+    EXPECT_EQ(c.integer != nullptr, c.kind == ColumnKind::Integer) << c.name;
+    EXPECT_EQ(c.number != nullptr, c.kind == ColumnKind::Number) << c.name;
+    EXPECT_EQ(c.optional != nullptr, c.kind == ColumnKind::OptionalNumber) << c.name;
+  }
+}
+
+TEST(OutputSchema, HeaderRowsAndFinalFollowTheTable) {
+  const SeriesLayout plain(false, false, {});
+  const SeriesLayout full(true, true, {"reference_mass_ratio", "error_mass_ratio"});
+  EXPECT_EQ(plain.header().rfind("step,t,dt,n_particles,", 0), 0u);
+  EXPECT_EQ(plain.header().find("polar_inertia_ratio"), std::string::npos);
+  EXPECT_EQ(plain.header().find("error_mass_blob"), std::string::npos);
+  EXPECT_NE(full.header().find(",mass_ratio,polar_inertia_ratio,mass_blob,mass_blob_ratio,error_mass_blob,"
+                               "reference_mass_ratio,error_mass_ratio\n"),
+            std::string::npos);
+
+  StepRecord r;
+  r.step = 7;
+  r.t = 0.5;
+  r.n_particles = 12;
+  r.polar_inertia_ratio = 0.25;
+  r.error_mass_blob = -0.125;
+  r.reference_values = {1.5, 2.5};
+  const std::string row = full.row(r);
+  auto fields = [](const std::string& s) { return std::count(s.begin(), s.end(), ',') + 1; };
+  EXPECT_EQ(fields(row), fields(full.header()));
+  EXPECT_EQ(row.rfind("7,0.5,0,12,", 0), 0u);
+  EXPECT_NE(row.find(",0,0,0.25,0,0,-0.125,1.5,2.5\n"), std::string::npos) << row;
+  // No estimate: an empty field.
+  r.reference_values.clear();
+  EXPECT_NE(plain.row(r).find(",0,0,,0,"), std::string::npos) << plain.row(r);
+  r.t = std::numeric_limits<double>::quiet_NaN();
+  try {
+    (void)plain.row(r);
+    ADD_FAILURE() << "a NaN was written";
+  } catch (const std::runtime_error& e) {
+    EXPECT_EQ(std::string(e.what()).rfind("non-finite t = nan at step 7", 0), 0u) << e.what();
+  }
+
+  r.t = 0.5;
+  const nlohmann::json f = otfp::app::final_json(r);
+  std::size_t in_final = 0;
+  for (const auto& c : series_columns()) {
+    EXPECT_EQ(f.contains(c.name), c.in_final) << c.name;
+    in_final += c.in_final ? 1 : 0;
+  }
+  EXPECT_EQ(f.size(), in_final);
+  EXPECT_EQ(f["step"], 7);
+  EXPECT_EQ(f["polar_inertia_ratio"], 0.25);
+  r.polar_inertia_ratio.reset();
+  EXPECT_TRUE(otfp::app::final_json(r)["polar_inertia_ratio"].is_null());
+}
+
+}  // namespace
