@@ -15,6 +15,18 @@ namespace {
 // Thrown by the observer wrapper when the Python observer returns False.
 struct StopRequested {};
 
+// An observer's answer: None or True go on, False stops after the step;
+// anything else (numpy's bool is a bool) is a mistake, not a truth value.
+bool stops(const py::object& r) {
+  if (r.is_none()) return false;
+  const bool is_bool =
+      py::isinstance<py::bool_>(r) || py::isinstance(r, py::module_::import("numpy").attr("bool_"));
+  if (!is_bool)
+    throw py::type_error("observer returned " + py::str(py::type::of(r).attr("__name__")).cast<std::string>() +
+                         ": an observer must return None or True (go on) or False (stop after this step)");
+  return !r.cast<bool>();
+}
+
 }  // namespace
 
 void bind_simulation(py::module_& m) {
@@ -83,16 +95,7 @@ void bind_simulation(py::module_& m) {
                obs = [&observer, &s](const Simulation&, const SimulationStep& step) {
                  py::gil_scoped_acquire acquire;
                  py::object r = observer(py::cast(s, py::return_value_policy::reference), py::cast(step));
-                 if (r.is_none()) return;
-                 // True/False (numpy's bool too); anything else is a mistake, not a truth value.
-                 const bool is_bool = py::isinstance<py::bool_>(r) ||
-                                      py::isinstance(r, py::module_::import("numpy").attr("bool_"));
-                 if (!is_bool)
-                   throw py::type_error("observer returned " +
-                                        py::str(py::type::of(r).attr("__name__")).cast<std::string>() +
-                                        ": an observer must return None or True (go on) or False (stop after this "
-                                        "step)");
-                 if (!r.cast<bool>()) throw StopRequested{};
+                 if (stops(r)) throw StopRequested{};
                };
              try {
                py::gil_scoped_release release;
@@ -114,15 +117,7 @@ void bind_simulation(py::module_& m) {
                c.stop = [&observer, &s](const SimulationStep& step) {
                  py::gil_scoped_acquire acquire;
                  py::object r = observer(py::cast(s, py::return_value_policy::reference), py::cast(step));
-                 if (r.is_none()) return false;
-                 const bool is_bool = py::isinstance<py::bool_>(r) ||
-                                      py::isinstance(r, py::module_::import("numpy").attr("bool_"));
-                 if (!is_bool)
-                   throw py::type_error("observer returned " +
-                                        py::str(py::type::of(r).attr("__name__")).cast<std::string>() +
-                                        ": an observer must return None or True (go on) or False (stop after this "
-                                        "step)");
-                 return !r.cast<bool>();
+                 return stops(r);
                };
              struct Checkpoints : RunObserver {
                py::object* call = nullptr;
