@@ -415,6 +415,17 @@ TEST(ConfigFuzz, AcceptedMutantsRunCleanly) {
     // (minutes under ASan): such runs are left to the examples' own tests.
     const std::string& type = run->config().domain.type;
     if (d.mirrored_walls > 0 && (type == "ball" || type == "cylinder" || type == "square_pipe_obstacle")) continue;
+#if defined(__SANITIZE_ADDRESS__)
+    // Under the sanitizers (about 7x slower) a case whose Dirichlet data fill
+    // the reservoir band with far more particles than n_inf (g |Omega| >>
+    // M_inf) is left to the Release pass, which runs it: one such case (235k
+    // blobs, each overlapping 18k others, refused by the neighbour list) took
+    // 3 of the sanitizer pass's 5 minutes of tests.
+    double g_max = 0.0;
+    for (const PatchInfo& p : run->patches())
+      if (p.kind == "dirichlet") g_max = std::max(g_max, std::abs(p.value));
+    if (g_max * d.volume > 50.0 * d.M_inf) continue;
+#endif
     ++ran;
     if (std::getenv("OTFP_FUZZ_TRACE")) std::cerr << "case " << ran << "\n" << describe(c) << std::endl;
     RunOptions options;  // empty out_dir: in memory, nothing written
