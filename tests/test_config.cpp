@@ -79,13 +79,13 @@ TEST(Config, EmptyDocumentGivesDocumentedDefaults) {
   EXPECT_FALSE(c.run.dt.has_value());
   EXPECT_DOUBLE_EQ(c.run.dt_factor, 1.0);
   EXPECT_EQ(c.run.threads, 1);
-  EXPECT_EQ(c.domain.type, "ball");
+  EXPECT_EQ(c.domain.type, DomainType::Ball);
   EXPECT_EQ(c.particles.n_inf, 400);
-  EXPECT_EQ(c.particles.spacing_rule, "cube");
+  EXPECT_EQ(c.particles.spacing_rule, SpacingRule::Cube);
   EXPECT_DOUBLE_EQ(c.particles.beta_factor, 2.0);
-  EXPECT_EQ(c.solver.stepper, "implicit");
-  EXPECT_EQ(c.solver.backend, "ceres");
-  EXPECT_EQ(c.solver.width_metric, "as_printed");
+  EXPECT_EQ(c.solver.stepper, StepperKind::Implicit);
+  EXPECT_EQ(c.solver.backend, Backend::Ceres);
+  EXPECT_EQ(c.solver.width_metric, WidthMetric::AsPrinted);
   EXPECT_DOUBLE_EQ(c.solver.barrier_factor, 1.0);
   EXPECT_EQ(c.diagnostics.reference, "none");
   EXPECT_TRUE(c.boundary.empty());
@@ -118,24 +118,24 @@ TEST(Config, TreatmentKeysReachTheRun) {
   ConfiguredRun papers(parse_config_string(kBase, {"treatment.preset=papers"}));
   EXPECT_EQ(papers.derived().mirrored_walls, 0);
   EXPECT_EQ(papers.derived().reservoir_width, 0.0);
-  EXPECT_EQ(papers.config().particles.spacing_rule, "sphere_radius");
+  EXPECT_EQ(papers.config().particles.spacing_rule, SpacingRule::SphereRadius);
   // The default preset ("converging"): the odd reservoir, whose back face is mirrored, and the true spacing.
   ConfiguredRun converging(parse_config_string(kBase));
-  EXPECT_EQ(converging.config().treatment.preset, "converging");
-  EXPECT_EQ(converging.config().treatment.dirichlet, "reservoir");
-  EXPECT_EQ(converging.config().treatment.reservoir_profile, "odd");
-  EXPECT_EQ(converging.config().particles.spacing_rule, "cube");
+  EXPECT_EQ(converging.config().treatment.preset, TreatmentPreset::Converging);
+  EXPECT_EQ(converging.config().treatment.dirichlet, DirichletMode::Reservoir);
+  EXPECT_EQ(converging.config().treatment.reservoir_profile, ReservoirProfile::Odd);
+  EXPECT_EQ(converging.config().particles.spacing_rule, SpacingRule::Cube);
   EXPECT_EQ(converging.derived().mirrored_walls, 1);
   EXPECT_GT(converging.derived().reservoir_width, 0.0);
   // A key set beside the preset wins over it, wherever it stands.
   const Config mixed = parse_config_string(kBase + "[treatment]\nno_flux = \"barrier\"\npreset = \"converging\"\n",
                                            {"treatment.neumann_outflow=layer"});
-  EXPECT_EQ(mixed.treatment.no_flux, "barrier");
-  EXPECT_EQ(mixed.treatment.neumann_outflow, "layer");
-  EXPECT_EQ(mixed.treatment.dirichlet, "reservoir");
+  EXPECT_EQ(mixed.treatment.no_flux, NoFluxTreatment::Barrier);
+  EXPECT_EQ(mixed.treatment.neumann_outflow, NeumannOutflow::Layer);
+  EXPECT_EQ(mixed.treatment.dirichlet, DirichletMode::Reservoir);
   const Config explicit_rule = parse_config_string(kBase, {"treatment.preset=papers", "particles.spacing_rule=cube"});
-  EXPECT_EQ(explicit_rule.particles.spacing_rule, "cube");
-  EXPECT_EQ(parse_config_string(kBase, {"treatment.preset=papers", "run.dim=2"}).particles.spacing_rule, "cube");
+  EXPECT_EQ(explicit_rule.particles.spacing_rule, SpacingRule::Cube);
+  EXPECT_EQ(parse_config_string(kBase, {"treatment.preset=papers", "run.dim=2"}).particles.spacing_rule, SpacingRule::Cube);
   ConfiguredRun reservoir(parse_config_string(kBase, {"particles.n_inf=1600", "treatment.dirichlet=reservoir",
                                                    "treatment.reservoir_width=1.5", "treatment.reservoir_profile=odd"}));
   const Derived& d = reservoir.derived();
@@ -146,9 +146,9 @@ TEST(Config, TreatmentKeysReachTheRun) {
   EXPECT_EQ(reservoir.describe()["config"]["treatment"]["reservoir_profile"], "odd");
   // The resolved TOML parses back to the same treatment.
   const Config again = parse_config_string(to_toml(reservoir.config()));
-  EXPECT_EQ(again.treatment.dirichlet, "reservoir");
+  EXPECT_EQ(again.treatment.dirichlet, DirichletMode::Reservoir);
   EXPECT_DOUBLE_EQ(again.treatment.reservoir_width, 1.5);
-  EXPECT_EQ(again.treatment.reservoir_profile, "odd");
+  EXPECT_EQ(again.treatment.reservoir_profile, ReservoirProfile::Odd);
   // A box with one Dirichlet face: images at the five others (papers' layer),
   // and the reservoir's back face as well under the default preset.
   ConfiguredRun box(parse_config_file(std::filesystem::path(OTFP_SOURCE_DIR) / "examples" / "box_mixed.toml",
@@ -166,11 +166,11 @@ TEST(Config, SetUsesTheTypeOfTheKey) {
                                                "physics.kappa=2", "run.t_end=0.5", "physics.velocity=[1, 0, 0]",
                                                "solver.backend=\"nlopt\"", "diagnostics.center=[0.5]"});
   EXPECT_EQ(c.particles.n_inf, 3200);
-  EXPECT_EQ(c.solver.stepper, "explicit");
+  EXPECT_EQ(c.solver.stepper, StepperKind::Explicit);
   EXPECT_DOUBLE_EQ(c.physics.kappa, 2.0);  // an integer literal into a float key
   EXPECT_DOUBLE_EQ(c.run.t_end, 0.5);
   EXPECT_DOUBLE_EQ(c.physics.velocity.x(), 1.0);
-  EXPECT_EQ(c.solver.backend, "nlopt");
+  EXPECT_EQ(c.solver.backend, Backend::Nlopt);
   EXPECT_DOUBLE_EQ(c.diagnostics.center->x(), 0.5);
   EXPECT_DOUBLE_EQ(c.diagnostics.center->y(), 0.0);
 }
@@ -187,7 +187,7 @@ TEST(Config, SetAddressesBoundaryEntriesByIndexOrPatchName) {
   c = parse_config_string(box, {"boundary.x-.kind=dirichlet", "boundary.x-.value=2"});
   ASSERT_EQ(c.boundary.size(), 1u);
   EXPECT_EQ(c.boundary[0].patch, "x-");
-  EXPECT_EQ(c.boundary[0].kind, "dirichlet");
+  EXPECT_EQ(c.boundary[0].kind, PatchKind::Dirichlet);
   // Index == size appends too.
   c = parse_config_string(box, {"boundary.0.patch=y+", "boundary.0.kind=no_flux"});
   EXPECT_EQ(c.boundary[0].patch, "y+");
@@ -718,15 +718,15 @@ TEST(Config, CliDefaultsAreTheLibraryDefaults) {
   const SolverSection& s = c.solver;
   const ImplicitOptions io;
   const ExplicitOptions eo;
-  EXPECT_EQ(s.backend, to_string(io.minimizer.backend));
-  EXPECT_EQ(s.algorithm, to_string(io.minimizer.algorithm));
+  EXPECT_EQ(s.backend, io.minimizer.backend);
+  EXPECT_EQ(s.algorithm, io.minimizer.algorithm);
   EXPECT_EQ(s.max_iterations, io.minimizer.max_iterations);
   EXPECT_EQ(s.max_evaluations, io.minimizer.max_evaluations);
   EXPECT_EQ(s.lbfgs_memory, io.minimizer.lbfgs_memory);
-  EXPECT_EQ(s.width_mode, to_string(io.width_mode));
-  EXPECT_EQ(s.width_metric == "exact" ? WidthMetric::ExactGaussian : WidthMetric::AsPrinted, io.width_metric);
-  EXPECT_EQ(s.time_scheme, to_string(io.time_scheme));
-  EXPECT_EQ(s.predictor, to_string(io.predictor));
+  EXPECT_EQ(s.width_mode, io.width_mode);
+  EXPECT_EQ(s.width_metric, io.width_metric);
+  EXPECT_EQ(s.time_scheme, io.time_scheme);
+  EXPECT_EQ(s.predictor, io.predictor);
   EXPECT_EQ(s.error_smoothing, io.error_smoothing);
   EXPECT_EQ(s.displacement_tolerance, io.displacement_tolerance);
   EXPECT_EQ(s.relative_tolerance, io.relative_tolerance);
@@ -738,7 +738,7 @@ TEST(Config, CliDefaultsAreTheLibraryDefaults) {
   EXPECT_EQ(s.max_width_factor, 0.0);
   EXPECT_EQ(s.kernel_tolerance, eo.neighbor.kernel_tolerance);
   EXPECT_EQ(s.skin_factor, eo.neighbor.skin_factor);
-  EXPECT_EQ(s.explicit_scheme, to_string(eo.scheme));
+  EXPECT_EQ(s.explicit_scheme, eo.scheme);
   EXPECT_EQ(c.physics.kappa, io.kappa);
   EXPECT_EQ(c.physics.rho_ref, io.rho_ref);
   EXPECT_EQ(c.physics.kappa, eo.kappa);
@@ -746,17 +746,17 @@ TEST(Config, CliDefaultsAreTheLibraryDefaults) {
   // The set-up and the treatment: the library's RunSetupOptions and the converging preset.
   const RunSetupOptions ro;
   const TreatmentOptions to = treatment_preset(TreatmentPreset::Converging, 3);
-  EXPECT_EQ(c.treatment.preset, to_string(TreatmentPreset::Converging));
-  EXPECT_EQ(c.treatment.no_flux, to_string(to.no_flux));
-  EXPECT_EQ(c.treatment.dirichlet, to_string(to.dirichlet));
-  EXPECT_EQ(c.treatment.reservoir_profile, to_string(to.reservoir_profile));
-  EXPECT_EQ(c.treatment.reservoir_control, to_string(to.reservoir_control));
+  EXPECT_EQ(c.treatment.preset, TreatmentPreset::Converging);
+  EXPECT_EQ(c.treatment.no_flux, to.no_flux);
+  EXPECT_EQ(c.treatment.dirichlet, to.dirichlet);
+  EXPECT_EQ(c.treatment.reservoir_profile, to.reservoir_profile);
+  EXPECT_EQ(c.treatment.reservoir_control, to.reservoir_control);
   EXPECT_EQ(c.treatment.reservoir_width, to.reservoir_width);
   EXPECT_EQ(c.treatment.reservoir_tolerance, to.reservoir_tolerance);
   EXPECT_EQ(c.treatment.reservoir_candidates, to.reservoir_candidates);
-  EXPECT_EQ(c.treatment.neumann_outflow, "nearest");
+  EXPECT_EQ(c.treatment.neumann_outflow, NeumannOutflow::NearestParticles);
   EXPECT_EQ(to.neumann_outflow, NeumannOutflow::NearestParticles);
-  EXPECT_EQ(c.particles.spacing_rule, to_string(to.spacing_rule));
+  EXPECT_EQ(c.particles.spacing_rule, to.spacing_rule);
   EXPECT_EQ(c.particles.n_inf, ro.n_inf);
   EXPECT_EQ(c.particles.beta_factor, ro.beta_factor);
   EXPECT_EQ(c.run.t_end, ro.t_end);
@@ -774,12 +774,12 @@ TEST(Config, CliDefaultsAreTheLibraryDefaults) {
   EXPECT_EQ(s.energy_tolerance, 1e-9);
   EXPECT_EQ(s.kernel_tolerance, 1e-8);
   EXPECT_EQ(s.skin_factor, 1.0);
-  EXPECT_EQ(s.backend, "ceres");
-  EXPECT_EQ(s.algorithm, "lbfgs");
-  EXPECT_EQ(s.explicit_scheme, "euler27");
-  EXPECT_EQ(s.width_mode, "fixed");
-  EXPECT_EQ(s.time_scheme, "euler");
-  EXPECT_EQ(s.predictor, "none");
+  EXPECT_EQ(s.backend, Backend::Ceres);
+  EXPECT_EQ(s.algorithm, Algorithm::Lbfgs);
+  EXPECT_EQ(s.explicit_scheme, ExplicitScheme::EulerForce27);
+  EXPECT_EQ(s.width_mode, WidthMode::Fixed);
+  EXPECT_EQ(s.time_scheme, TimeScheme::Euler);
+  EXPECT_EQ(s.predictor, Predictor::None);
 }
 
 // Every choice of a key that maps to a library enum converts with the

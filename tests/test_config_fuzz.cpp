@@ -413,8 +413,10 @@ TEST(ConfigFuzz, AcceptedMutantsRunCleanly) {
     if (run->config().particles.n_inf > kRunParticleCap || d.fill_count > kRunParticleCap) continue;
     // Image blobs at a curved wall cost seconds per step even at n_inf = 400
     // (minutes under ASan): such runs are left to the examples' own tests.
-    const std::string& type = run->config().domain.type;
-    if (d.mirrored_walls > 0 && (type == "ball" || type == "cylinder" || type == "square_pipe_obstacle")) continue;
+    const DomainType type = run->config().domain.type;
+    if (d.mirrored_walls > 0 &&
+        (type == DomainType::Ball || type == DomainType::Cylinder || type == DomainType::SquarePipeObstacle))
+      continue;
 #if defined(__SANITIZE_ADDRESS__)
     // Under the sanitizers (about 7x slower) a case whose Dirichlet data fill
     // the reservoir band with far more particles than n_inf (g |Omega| >>
@@ -423,7 +425,7 @@ TEST(ConfigFuzz, AcceptedMutantsRunCleanly) {
     // 3 of the sanitizer pass's 5 minutes of tests.
     double g_max = 0.0;
     for (const PatchInfo& p : run->patches())
-      if (p.kind == "dirichlet") g_max = std::max(g_max, std::abs(p.value));
+      if (p.kind == PatchKind::Dirichlet) g_max = std::max(g_max, std::abs(p.value));
     if (g_max * d.volume > 50.0 * d.M_inf) continue;
 #endif
     ++ran;

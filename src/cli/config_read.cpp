@@ -203,13 +203,13 @@ void read_key(const toml::table& root, const Field& f, Config& c) {
 // reservoir, outlets that reach the nearest particles, the true spacing).
 void apply_treatment_preset(Config& c) {
   TreatmentSection& t = c.treatment;
-  const TreatmentOptions o = treatment_preset(treatment_preset_from_string(t.preset), c.run.dim);
-  t.no_flux = to_string(o.no_flux);
-  t.dirichlet = to_string(o.dirichlet);
-  t.reservoir_profile = to_string(o.reservoir_profile);
-  t.neumann_outflow = o.neumann_outflow == NeumannOutflow::NearestParticles ? "nearest" : "layer";
-  t.stranded = o.absorb_stranded ? "absorb" : "keep";
-  c.particles.spacing_rule = to_string(o.spacing_rule);
+  const TreatmentOptions o = treatment_preset(t.preset, c.run.dim);
+  t.no_flux = o.no_flux;
+  t.dirichlet = o.dirichlet;
+  t.reservoir_profile = o.reservoir_profile;
+  t.neumann_outflow = o.neumann_outflow;
+  t.absorb_stranded = o.absorb_stranded;
+  c.particles.spacing_rule = o.spacing_rule;
 }
 
 // `base`: the directory relative paths are taken from.
@@ -231,7 +231,7 @@ Config to_config(const toml::table& root, const fs::path& base) {
     if (file.is_relative()) file = base / file;
     p.fill_file = file.lexically_normal().string();
   }
-  if (p.fill == "file")
+  if (p.fill == Fill::File)
     for (const Field& f : fields()) {
       static const std::set<std::string> other_fills = {
           "particles.fill_count", "particles.fill_mass",      "particles.fill_center", "particles.fill_sigma",

@@ -40,6 +40,31 @@ ConfigError::ConfigError(const std::string& key, const std::string& value, const
 ConfigError::ConfigError(const std::string& key, const std::string& message)
     : std::runtime_error(one_line(message)), key_(key) {}
 
+std::string to_string(DtMode m) { return m == DtMode::Adaptive ? "adaptive" : "fixed"; }
+std::string to_string(DomainType t) {
+  switch (t) {
+    case DomainType::Ball: return "ball";
+    case DomainType::Box: return "box";
+    case DomainType::Cylinder: return "cylinder";
+    case DomainType::PeriodicBox: return "periodic_box";
+    case DomainType::SquarePipeObstacle: return "square_pipe_obstacle";
+    case DomainType::Free: return "free";
+  }
+  return "?";
+}
+std::string to_string(Axis a) { return std::string(1, "xyz"[static_cast<int>(a)]); }
+std::string to_string(Fill f) {
+  switch (f) {
+    case Fill::Empty: return "empty";
+    case Fill::Uniform: return "uniform";
+    case Fill::Gaussian: return "gaussian";
+    case Fill::Cosine: return "cosine";
+    case Fill::File: return "file";
+  }
+  return "?";
+}
+std::string to_string(Arrangement a) { return a == Arrangement::Lattice ? "lattice" : "random"; }
+
 namespace config_detail {
 
 // ------------------------------------------------------------------ values
@@ -207,16 +232,23 @@ template <> struct Owner<DiagnosticsSection> {
   template <class C> static auto& of(C& c, std::size_t) { return c.diagnostics; }
 };
 
+// A key of member type M of O: its path split into section and key, its scope.
 template <class O, class M>
-Field key(std::string path, M O::*member) {
+Field blank(std::string path) {
   Field f;
   f.path = std::move(path);
   f.scope = Owner<O>::scope;
   const std::size_t dot = f.path.rfind('.');
   f.key = f.path.substr(dot + 1);
   f.section = f.path.substr(0, f.path.find_first_of(".["));
-  f.kind = KindOf<M>::value;
   f.optional = IsOptional<M>::value;
+  return f;
+}
+
+template <class O, class M>
+Field key(std::string path, M O::*member) {
+  Field f = blank<O, M>(std::move(path));
+  f.kind = KindOf<M>::value;
   f.fallback = to_value(O{}.*member);
   f.get = [member](const Config& c, std::size_t i) { return to_value(Owner<O>::of(c, i).*member); };
   f.set = [member](Config& c, std::size_t i, const Value& v, const std::string& display) {
@@ -225,12 +257,55 @@ Field key(std::string path, M O::*member) {
   return f;
 }
 
-// The names of a library enum, in the order given.
+// The names of a choice in the configuration file, in the order messages list them.
 template <class E>
-std::vector<std::string> names(std::initializer_list<E> values) {
-  std::vector<std::string> out;
-  for (E e : values) out.push_back(to_string(e));
+using Names = std::vector<std::pair<E, std::string>>;
+
+// The names of an enum with to_string (the library's, and config.hpp's own).
+template <class E>
+Names<E> named(std::initializer_list<E> values) {
+  Names<E> out;
+  for (E e : values) out.emplace_back(e, to_string(e));
   return out;
+}
+
+template <class E>
+const std::string& name_of(const Names<E>& names, E e) {
+  for (const auto& [value, name] : names)
+    if (value == e) return name;
+  throw std::logic_error("config table: a value with no name");  // every enumerator is listed
+}
+
+// A key that is one of `names` in the file and the enum E (or
+// std::optional<E>, absent until given) in Config; the table converts both ways.
+template <class O, class M, class E>
+Field choice(std::string path, M O::*member, Names<E> names) {
+  Field f = blank<O, M>(std::move(path));
+  f.kind = Kind::String;
+  for (const auto& n : names) f.choices.push_back(n.second);
+  const auto value_of = [names](const M& m) -> Value {
+    if constexpr (IsOptional<M>::value)
+      return m ? Value{name_of(names, *m)} : Value{};
+    else
+      return name_of(names, m);
+  };
+  f.fallback = value_of(O{}.*member);
+  f.get = [member, value_of](const Config& c, std::size_t i) { return value_of(Owner<O>::of(c, i).*member); };
+  f.set = [member, names](Config& c, std::size_t i, const Value& v, const std::string& display) {
+    M& m = Owner<O>::of(c, i).*member;
+    if (std::holds_alternative<std::monostate>(v)) {
+      m = M{};
+      return;
+    }
+    const std::string& given = std::get<std::string>(v);  // the parser checked that it is one of the names
+    for (const auto& [value, name] : names)
+      if (name == given) {
+        m = value;
+        return;
+      }
+    throw ConfigError(display, quoted(given), "is not one of the names of this key");
+  };
+  return f;
 }
 
 // diagnostics.reference: "none" and the library's references (otfp/reference.hpp).
@@ -240,10 +315,8 @@ std::vector<std::string> reference_choices() {
   return out;
 }
 
-bool domain_is(const Config& c, std::initializer_list<const char*> types) {
-  for (const char* t : types)
-    if (c.domain.type == t) return true;
-  return false;
+bool domain_is(const Config& c, std::initializer_list<DomainType> types) {
+  return std::find(types.begin(), types.end(), c.domain.type) != types.end();
 }
 
 }  // namespace
@@ -253,18 +326,18 @@ const std::vector<Field>& fields() {
     Rule dim = interval('[', 1, 3, ']', "must be 1, 2 or 3");
     dim.doc = "1, 2 or 3";
     Rule radius = greater(0);
-    radius.when = [](const Config& c) { return domain_is(c, {"ball", "cylinder"}); };
+    radius.when = [](const Config& c) { return domain_is(c, {DomainType::Ball, DomainType::Cylinder}); };
     Rule obstacle_radius = greater(0);
-    obstacle_radius.when = [](const Config& c) { return domain_is(c, {"square_pipe_obstacle"}); };
+    obstacle_radius.when = [](const Config& c) { return domain_is(c, {DomainType::SquarePipeObstacle}); };
     Rule solver_cap = at_least(1);  // the library's caps are int
     solver_cap.hi = std::numeric_limits<int>::max();
     solver_cap.above = "out of range";
     solver_cap.doc = ">= 1";
     Rule reservoir_width = interval('(', 0, 10, ']');
     reservoir_width.above = "must be <= 10 (kernel cut-offs)";
-    const auto neumann_only = [](const Config& c, std::size_t i) { return c.boundary[i].kind == "neumann"; };
+    const auto neumann_only = [](const Config& c, std::size_t i) { return c.boundary[i].kind == PatchKind::Neumann; };
     // fill = "file": the file gives the particles, the keys of the other fills do not apply.
-    const auto not_from_file = [](const Config& c, std::size_t) { return c.particles.fill != "file"; };
+    const auto not_from_file = [](const Config& c, std::size_t) { return c.particles.fill != Fill::File; };
 
     return std::vector<Field>{
         key("run.dim", &RunSection::dim).with(dim),
@@ -273,7 +346,7 @@ const std::vector<Field>& fields() {
         key("run.dt_factor", &RunSection::dt_factor).with(greater(0)),
         key("run.seed", &RunSection::seed).with(at_least(0)),
         key("run.max_steps", &RunSection::max_steps).with(at_least(0)),
-        key("run.dt_mode", &RunSection::dt_mode).one_of({"fixed", "adaptive"}),
+        choice("run.dt_mode", &RunSection::dt_mode, named({DtMode::Fixed, DtMode::Adaptive})),
         key("run.time_tolerance", &RunSection::time_tolerance).with(greater(0)),
         key("run.dt_min", &RunSection::dt_min).with(greater(0)),
         key("run.dt_max", &RunSection::dt_max).with(greater(0)),
@@ -281,8 +354,9 @@ const std::vector<Field>& fields() {
         key("run.checkpoint_interval", &RunSection::checkpoint_interval).with(at_least(0)),
         key("run.max_particles", &RunSection::max_particles).with(at_least(0)),
         key("run.threads", &RunSection::threads).with(interval('[', 0, 4096, ']', "must be in [0, 4096] (0: OpenMP default)")),
-        key("domain.type", &DomainSection::type)
-            .one_of({"ball", "box", "cylinder", "periodic_box", "square_pipe_obstacle", "free"}),
+        choice("domain.type", &DomainSection::type,
+               named({DomainType::Ball, DomainType::Box, DomainType::Cylinder, DomainType::PeriodicBox,
+                      DomainType::SquarePipeObstacle, DomainType::Free})),
         key("domain.center", &DomainSection::center),
         key("domain.radius", &DomainSection::radius).with(radius),
         key("domain.lo", &DomainSection::lo),
@@ -291,14 +365,14 @@ const std::vector<Field>& fields() {
         key("domain.end_b", &DomainSection::end_b),
         key("domain.obstacle_center", &DomainSection::obstacle_center),
         key("domain.obstacle_radius", &DomainSection::obstacle_radius).with(obstacle_radius),
-        key("domain.obstacle_axis", &DomainSection::obstacle_axis).one_of({"x", "y", "z"}),
+        choice("domain.obstacle_axis", &DomainSection::obstacle_axis, named({Axis::X, Axis::Y, Axis::Z})),
         key("domain.subpatch[].name", &SubPatchSpec::name).needed("required, a non-empty patch name"),
         key("domain.subpatch[].on", &SubPatchSpec::on).needed("required: the name of the patch it lies on"),
         key("domain.subpatch[].center", &SubPatchSpec::center),
         key("domain.subpatch[].radius", &SubPatchSpec::radius).needed("required, > 0").with(greater(0)),
         key("particles.n_inf", &ParticlesSection::n_inf).with(at_least(1)),
         key("particles.mass", &ParticlesSection::mass).with(greater(0)),
-        key("particles.spacing_rule", &ParticlesSection::spacing_rule).one_of(names({SpacingRule::Cube, SpacingRule::SphereRadius})),
+        choice("particles.spacing_rule", &ParticlesSection::spacing_rule,named({SpacingRule::Cube, SpacingRule::SphereRadius})),
         key("particles.beta_factor", &ParticlesSection::beta_factor).with(greater(0)),
         key("particles.width_exponent", &ParticlesSection::width_exponent)
             .with(interval('(', 0, 2, ']',
@@ -306,11 +380,11 @@ const std::vector<Field>& fields() {
         key("particles.width_reference_n", &ParticlesSection::width_reference_n).with(at_least(1)),
         key("particles.layer_b", &ParticlesSection::layer_b).with(at_least(0)),
         key("particles.length_L", &ParticlesSection::length_L).with(at_least(0)),
-        key("particles.dirichlet_target", &ParticlesSection::dirichlet_target).one_of(names({DirichletTarget::CellIntegral, DirichletTarget::PaperEq34})),
-        key("particles.fill", &ParticlesSection::fill).one_of({"empty", "uniform", "gaussian", "cosine", "file"}),
+        choice("particles.dirichlet_target", &ParticlesSection::dirichlet_target,named({DirichletTarget::CellIntegral, DirichletTarget::PaperEq34})),
+        choice("particles.fill", &ParticlesSection::fill, named({Fill::Empty, Fill::Uniform, Fill::Gaussian, Fill::Cosine, Fill::File})),
         key("particles.fill_file", &ParticlesSection::fill_file),
-        key("particles.fill_arrangement", &ParticlesSection::fill_arrangement)
-            .one_of({"random", "lattice"})
+        choice("particles.fill_arrangement", &ParticlesSection::fill_arrangement,
+               named({Arrangement::Random, Arrangement::Lattice}))
             .written_if(not_from_file),
         key("particles.fill_amplitude", &ParticlesSection::fill_amplitude)
             .with(interval('[', 0, 1, ')', "must be in [0, 1) (density 1 + a cos(k x) > 0)"))
@@ -325,28 +399,28 @@ const std::vector<Field>& fields() {
         key("physics.velocity", &PhysicsSection::velocity),
         key("physics.source_rate", &PhysicsSection::source_rate),
         key("boundary[].patch", &BoundarySpec::patch).needed("required: the name of a domain patch"),
-        key("boundary[].kind", &BoundarySpec::kind)
-            .one_of(names({PatchKind::Dirichlet, PatchKind::Neumann, PatchKind::NoFlux}))
+        choice("boundary[].kind", &BoundarySpec::kind,
+            named({PatchKind::Dirichlet, PatchKind::Neumann, PatchKind::NoFlux}))
             .needed("required: one of dirichlet, neumann, no_flux"),
         key("boundary[].value", &BoundarySpec::value),
         key("boundary[].t_start", &BoundarySpec::t_start).with(at_least(0)).written_if(neumann_only),
         key("boundary[].t_end", &BoundarySpec::t_end),
-        key("solver.stepper", &SolverSection::stepper).one_of({"implicit", "explicit"}),
-        key("solver.backend", &SolverSection::backend).one_of(names({Backend::Ceres, Backend::Nlopt})),
-        key("solver.algorithm", &SolverSection::algorithm)
-            .one_of(names({Algorithm::Lbfgs, Algorithm::Bfgs, Algorithm::NonlinearCg, Algorithm::TruncatedNewton,
+        choice("solver.stepper", &SolverSection::stepper, named({StepperKind::Implicit, StepperKind::Explicit})),
+        choice("solver.backend", &SolverSection::backend,named({Backend::Ceres, Backend::Nlopt})),
+        choice("solver.algorithm", &SolverSection::algorithm,
+            named({Algorithm::Lbfgs, Algorithm::Bfgs, Algorithm::NonlinearCg, Algorithm::TruncatedNewton,
                            Algorithm::Var2, Algorithm::Mma})),
-        key("solver.explicit_scheme", &SolverSection::explicit_scheme)
-            .one_of(names({ExplicitScheme::EulerForce27, ExplicitScheme::Rk4Force27, ExplicitScheme::EulerExactGradient})),
-        key("solver.width_mode", &SolverSection::width_mode).one_of(names({WidthMode::Fixed, WidthMode::PerParticle})),
-        key("solver.width_metric", &SolverSection::width_metric).one_of(names({WidthMetric::AsPrinted, WidthMetric::ExactGaussian})),
-        key("solver.time_scheme", &SolverSection::time_scheme).one_of(names({TimeScheme::Euler, TimeScheme::Bdf2})),
-        key("solver.predictor", &SolverSection::predictor)
-            .one_of(names({Predictor::None, Predictor::Extrapolate, Predictor::Damped})),
-        key("solver.error_measure", &SolverSection::error_measure)
-            .one_of(names({ErrorMeasure::Density, ErrorMeasure::Displacement})),
-        key("solver.stopping_norm", &SolverSection::stopping_norm)
-            .one_of(names({StoppingNorm::Energy, StoppingNorm::Max})),
+        choice("solver.explicit_scheme", &SolverSection::explicit_scheme,
+            named({ExplicitScheme::EulerForce27, ExplicitScheme::Rk4Force27, ExplicitScheme::EulerExactGradient})),
+        choice("solver.width_mode", &SolverSection::width_mode,named({WidthMode::Fixed, WidthMode::PerParticle})),
+        choice("solver.width_metric", &SolverSection::width_metric,named({WidthMetric::AsPrinted, WidthMetric::ExactGaussian})),
+        choice("solver.time_scheme", &SolverSection::time_scheme,named({TimeScheme::Euler, TimeScheme::Bdf2})),
+        choice("solver.predictor", &SolverSection::predictor,
+            named({Predictor::None, Predictor::Extrapolate, Predictor::Damped})),
+        choice("solver.error_measure", &SolverSection::error_measure,
+            named({ErrorMeasure::Density, ErrorMeasure::Displacement})),
+        choice("solver.stopping_norm", &SolverSection::stopping_norm,
+            named({StoppingNorm::Energy, StoppingNorm::Max})),
         key("solver.max_norm_factor", &SolverSection::max_norm_factor).with(at_least(1)),
         key("solver.error_smoothing", &SolverSection::error_smoothing)
             .with(interval('[', 0, 3, ']', "must be in [0, 3] widths (the neighbour list reaches about 4.3 widths)")),
@@ -364,23 +438,24 @@ const std::vector<Field>& fields() {
         key("solver.skin_factor", &SolverSection::skin_factor).with(greater(0)),
         key("solver.max_width_factor", &SolverSection::max_width_factor)
             .with(interval('[', 0, 1e6, ']', "must be 0 (off) or in (1, 1e6]")),
-        key("treatment.preset", &TreatmentSection::preset).one_of({"converging", "papers"}),
-        key("treatment.no_flux", &TreatmentSection::no_flux).one_of({"barrier", "images"}),
-        key("treatment.dirichlet", &TreatmentSection::dirichlet)
-            .one_of(names({DirichletMode::Layer, DirichletMode::Reservoir})),
+        choice("treatment.preset", &TreatmentSection::preset, named({TreatmentPreset::Converging, TreatmentPreset::Papers})),
+        choice("treatment.no_flux", &TreatmentSection::no_flux, named({NoFluxTreatment::Barrier, NoFluxTreatment::Images})),
+        choice("treatment.dirichlet", &TreatmentSection::dirichlet,
+            named({DirichletMode::Layer, DirichletMode::Reservoir})),
         key("treatment.reservoir_width", &TreatmentSection::reservoir_width).with(reservoir_width),
         key("treatment.reservoir_sublayers", &TreatmentSection::reservoir_sublayers)
             .with(interval('[', 0, 1000, ']', "must be in [0, 1000] (0: about one spacing per sublayer)")),
-        key("treatment.reservoir_profile", &TreatmentSection::reservoir_profile)
-            .one_of(names({ReservoirProfile::Uniform, ReservoirProfile::Odd})),
-        key("treatment.reservoir_control", &TreatmentSection::reservoir_control)
-            .one_of(names({ReservoirControl::Quiet, ReservoirControl::Exact})),
+        choice("treatment.reservoir_profile", &TreatmentSection::reservoir_profile,
+            named({ReservoirProfile::Uniform, ReservoirProfile::Odd})),
+        choice("treatment.reservoir_control", &TreatmentSection::reservoir_control,
+            named({ReservoirControl::Quiet, ReservoirControl::Exact})),
         key("treatment.reservoir_tolerance", &TreatmentSection::reservoir_tolerance)
             .with(interval('[', 0.5, 1e6, ']', "must be in [0.5, 1000000] (particles)")),
         key("treatment.reservoir_candidates", &TreatmentSection::reservoir_candidates)
             .with(interval('[', 1, 1000, ']', "must be in [1, 1000] (candidate points per target particle)")),
-        key("treatment.neumann_outflow", &TreatmentSection::neumann_outflow).one_of({"layer", "nearest"}),
-        key("treatment.stranded", &TreatmentSection::stranded).one_of({"keep", "absorb"}),
+        choice("treatment.neumann_outflow", &TreatmentSection::neumann_outflow,
+               Names<NeumannOutflow>{{NeumannOutflow::Layer, "layer"}, {NeumannOutflow::NearestParticles, "nearest"}}),
+        choice("treatment.stranded", &TreatmentSection::absorb_stranded, Names<bool>{{false, "keep"}, {true, "absorb"}}),
         key("diagnostics.center", &DiagnosticsSection::center),
         key("diagnostics.M_inf", &DiagnosticsSection::M_inf).with(greater(0)),
         key("diagnostics.J_inf", &DiagnosticsSection::J_inf).with(greater(0)),

@@ -110,6 +110,7 @@ struct Field {
   }
   Field& needed(std::string rule_when_missing) {
     required = std::move(rule_when_missing);
+    optional = false;  // absent until given, but never left out
     return *this;
   }
   Field& written_if(std::function<bool(const Config&, std::size_t)> f) {

@@ -46,10 +46,10 @@ void check_rules(const Config& c) {
         if (f.scope == scope) check(f, i);
 }
 
-bool offered(const std::string& backend, const std::string& algorithm) {
-  if (algorithm == "lbfgs") return true;
-  if (backend == "ceres") return algorithm == "bfgs" || algorithm == "nonlinear_cg";
-  return algorithm == "tnewton" || algorithm == "var2" || algorithm == "mma";
+bool offered(Backend backend, Algorithm algorithm) {
+  if (algorithm == Algorithm::Lbfgs) return true;
+  if (backend == Backend::Ceres) return algorithm == Algorithm::Bfgs || algorithm == Algorithm::NonlinearCg;
+  return algorithm == Algorithm::TruncatedNewton || algorithm == Algorithm::Var2 || algorithm == Algorithm::Mma;
 }
 
 }  // namespace
@@ -66,28 +66,30 @@ void validate(const Config& c) {
                       fmt::format("must be >= 1e-9 x run.t_end = {} (at most 1e9 steps)", shown(1e-9 * r.t_end)));
   if (r.dt_min && r.dt_max && *r.dt_max < *r.dt_min)
     throw ConfigError("run.dt_max", shown(*r.dt_max), fmt::format("must be >= run.dt_min = {}", shown(*r.dt_min)));
-  if (r.dt_mode == "adaptive" && c.solver.stepper != "implicit")
-    throw ConfigError("run.dt_mode", quoted(r.dt_mode),
+  const bool implicit = c.solver.stepper == StepperKind::Implicit;
+  if (r.dt_mode == DtMode::Adaptive && !implicit)
+    throw ConfigError("run.dt_mode", "\"adaptive\"",
                       "needs solver.stepper = \"implicit\" (the explicit schemes have no error estimate)");
 
   const DomainSection& d = c.domain;
-  const std::string& type = d.type;
-  if (type == "box" || type == "periodic_box" || type == "square_pipe_obstacle" || type == "free") {
+  const DomainType type = d.type;
+  const bool box_shaped = type == DomainType::Box || type == DomainType::PeriodicBox || type == DomainType::Free;
+  if (box_shaped || type == DomainType::SquarePipeObstacle) {
     for (int k = 0; k < r.dim; ++k)
       if (!(d.hi[k] > d.lo[k]))
         throw ConfigError("domain.hi", shown(d.hi),
                           fmt::format("must exceed domain.lo = {} in every used axis (axis {} gives zero volume)",
                                       shown(d.lo), "xyz"[k]));
   }
-  if (type == "cylinder") {
-    if (r.dim != 3) throw ConfigError("domain.type", quoted(type), "needs run.dim = 3");
+  if (type == DomainType::Cylinder) {
+    if (r.dim != 3) throw ConfigError("domain.type", "\"cylinder\"", "needs run.dim = 3");
     if (!((d.end_b - d.end_a).norm() > 0.0))
       throw ConfigError("domain.end_b", shown(d.end_b), "must differ from domain.end_a (zero length)");
   }
-  if (type == "square_pipe_obstacle") {
-    if (r.dim < 2) throw ConfigError("domain.type", quoted(type), "needs run.dim = 2 or 3");
-    if (r.dim == 2 && d.obstacle_axis != "z")
-      throw ConfigError("domain.obstacle_axis", quoted(d.obstacle_axis), "must be \"z\" in 2D (a disc obstacle)");
+  if (type == DomainType::SquarePipeObstacle) {
+    if (r.dim < 2) throw ConfigError("domain.type", "\"square_pipe_obstacle\"", "needs run.dim = 2 or 3");
+    if (r.dim == 2 && d.obstacle_axis != Axis::Z)
+      throw ConfigError("domain.obstacle_axis", quoted(to_string(d.obstacle_axis)), "must be \"z\" in 2D (a disc obstacle)");
   }
   std::set<std::string> sub_names;
   for (std::size_t i = 0; i < d.subpatches.size(); ++i) {
@@ -97,13 +99,13 @@ void validate(const Config& c) {
   }
 
   const ParticlesSection& pa = c.particles;
-  if (pa.spacing_rule == "sphere_radius" && r.dim != 3)
-    throw ConfigError("particles.spacing_rule", quoted(pa.spacing_rule), "needs run.dim = 3 (use \"cube\")");
-  if (pa.fill == "file" && !pa.fill_file)
+  if (pa.spacing_rule == SpacingRule::SphereRadius && r.dim != 3)
+    throw ConfigError("particles.spacing_rule", "\"sphere_radius\"", "needs run.dim = 3 (use \"cube\")");
+  if (pa.fill == Fill::File && !pa.fill_file)
     throw ConfigError("particles.fill_file", "(missing)", "required with particles.fill = \"file\"");
-  if (pa.fill != "file" && pa.fill_file)
+  if (pa.fill != Fill::File && pa.fill_file)
     throw ConfigError("particles.fill_file", quoted(*pa.fill_file),
-                      "needs particles.fill = \"file\" (particles.fill = " + quoted(pa.fill) + ")");
+                      "needs particles.fill = \"file\" (particles.fill = " + quoted(to_string(pa.fill)) + ")");
   if (pa.fill_file && !fs::is_regular_file(*pa.fill_file)) {
     std::error_code ec;
     const fs::file_status st = fs::status(*pa.fill_file, ec);
@@ -119,15 +121,14 @@ void validate(const Config& c) {
   if (pa.fill_count && pa.fill_mass)
     throw ConfigError("particles.fill_count", std::to_string(*pa.fill_count),
                       "give either particles.fill_count or particles.fill_mass, not both");
-  if (pa.fill == "empty" && (pa.fill_count || pa.fill_mass))
+  if (pa.fill == Fill::Empty && (pa.fill_count || pa.fill_mass))
     throw ConfigError(pa.fill_count ? "particles.fill_count" : "particles.fill_mass",
                       pa.fill_count ? std::to_string(*pa.fill_count) : shown(*pa.fill_mass),
                       "needs particles.fill = \"uniform\", \"gaussian\" or \"cosine\"");
-  const bool box_shaped = type == "box" || type == "periodic_box" || type == "free";
-  if (pa.fill == "cosine" && !box_shaped)
+  if (pa.fill == Fill::Cosine && !box_shaped)
     throw ConfigError("particles.fill", "\"cosine\"", "needs domain.type = \"periodic_box\", \"box\" or \"free\"");
-  if (pa.fill_arrangement == "lattice") {
-    if (pa.fill != "uniform" && pa.fill != "cosine")
+  if (pa.fill_arrangement == Arrangement::Lattice) {
+    if (pa.fill != Fill::Uniform && pa.fill != Fill::Cosine)
       throw ConfigError("particles.fill_arrangement", "\"lattice\"", "needs particles.fill = \"uniform\" or \"cosine\"");
     if (!box_shaped)
       throw ConfigError("particles.fill_arrangement", "\"lattice\"",
@@ -144,50 +145,53 @@ void validate(const Config& c) {
     const std::string p = fmt::format("boundary[{}].", i);
     if (!patches.insert(b.patch).second)
       throw ConfigError(p + "patch", quoted(b.patch), "patch already has a [[boundary]] entry");
-    if (b.kind == "no_flux" && b.value)
+    const PatchKind kind = *b.kind;  // a required key (check_rules)
+    if (kind == PatchKind::NoFlux && b.value)
       throw ConfigError(p + "value", shown(*b.value), "not used by kind \"no_flux\" (remove it)");
-    if (b.kind != "no_flux" && !b.value)
+    if (kind != PatchKind::NoFlux && !b.value)
       throw ConfigError(p + "value", "(missing)",
-                        b.kind == "dirichlet" ? "required: the boundary density g (>= 0)"
-                                              : "required: the outward mass flux f (< 0 is inflow)");
-    if (b.kind == "dirichlet" && !(*b.value >= 0.0)) throw ConfigError(p + "value", shown(*b.value), "must be >= 0");
+                        kind == PatchKind::Dirichlet ? "required: the boundary density g (>= 0)"
+                                                     : "required: the outward mass flux f (< 0 is inflow)");
+    if (kind == PatchKind::Dirichlet && !(*b.value >= 0.0))
+      throw ConfigError(p + "value", shown(*b.value), "must be >= 0");
     if (b.t_end && !(*b.t_end > b.t_start))
       throw ConfigError(p + "t_end", shown(*b.t_end), "must be > t_start = " + shown(b.t_start));
-    if (b.kind != "neumann" && (b.t_start != 0.0 || b.t_end))
+    if (kind != PatchKind::Neumann && (b.t_start != 0.0 || b.t_end))
       throw ConfigError(p + (b.t_end ? "t_end" : "t_start"), shown(b.t_end ? *b.t_end : b.t_start),
                         "activity windows are only supported for kind \"neumann\"");
   }
 
   const SolverSection& s = c.solver;
   if (!offered(s.backend, s.algorithm))
-    throw ConfigError("solver.algorithm", quoted(s.algorithm),
-                      "not offered by solver.backend = \"" + s.backend + "\" (allowed: " +
-                          (s.backend == "ceres" ? "lbfgs, bfgs, nonlinear_cg" : "lbfgs, tnewton, var2, mma") + ")");
-  if (s.width_mode == "per_particle" && s.stepper != "implicit")
-    throw ConfigError("solver.width_mode", quoted(s.width_mode), "needs solver.stepper = \"implicit\"");
+    throw ConfigError("solver.algorithm", quoted(to_string(s.algorithm)),
+                      "not offered by solver.backend = " + quoted(to_string(s.backend)) + " (allowed: " +
+                          (s.backend == Backend::Ceres ? "lbfgs, bfgs, nonlinear_cg" : "lbfgs, tnewton, var2, mma") + ")");
+  const bool per_particle = s.width_mode == WidthMode::PerParticle;
+  if (per_particle && !implicit)
+    throw ConfigError("solver.width_mode", "\"per_particle\"", "needs solver.stepper = \"implicit\"");
   if (s.max_width_factor != 0.0 && !(s.max_width_factor > 1.0))
     throw ConfigError("solver.max_width_factor", shown(s.max_width_factor), "must be 0 (off) or in (1, 1e6]");
-  if (s.max_width_factor != 0.0 && s.width_mode != "per_particle")
+  if (s.max_width_factor != 0.0 && !per_particle)
     throw ConfigError("solver.max_width_factor", shown(s.max_width_factor),
                       "needs solver.width_mode = \"per_particle\" (fixed widths have no bound to keep)");
-  if (s.time_scheme != "euler" && s.stepper != "implicit")
-    throw ConfigError("solver.time_scheme", quoted(s.time_scheme),
+  if (s.time_scheme != TimeScheme::Euler && !implicit)
+    throw ConfigError("solver.time_scheme", quoted(to_string(s.time_scheme)),
                       "needs solver.stepper = \"implicit\" (explicit schemes: solver.explicit_scheme)");
-  if (s.predictor != "none" && s.stepper != "implicit")
-    throw ConfigError("solver.predictor", quoted(s.predictor), "needs solver.stepper = \"implicit\"");
+  if (s.predictor != Predictor::None && !implicit)
+    throw ConfigError("solver.predictor", quoted(to_string(s.predictor)), "needs solver.stepper = \"implicit\"");
 
   const DiagnosticsSection& g = c.diagnostics;
   // cos(k (x - lo)) with k = 2 pi m / L is a mode of the periodic box and,
   // its slope vanishing at both ends, of a closed box (no-flux walls only).
-  if (g.reference == "cosine_mode" && (type != "periodic_box" && type != "box"))
+  if (g.reference == "cosine_mode" && (type != DomainType::PeriodicBox && type != DomainType::Box))
     throw ConfigError("diagnostics.reference", "\"cosine_mode\"",
                       "needs domain.type = \"periodic_box\" or a closed \"box\", and particles.fill = \"cosine\"");
-  if (g.reference == "cosine_mode" && pa.fill != "cosine")
+  if (g.reference == "cosine_mode" && pa.fill != Fill::Cosine)
     throw ConfigError("diagnostics.reference", "\"cosine_mode\"", "needs particles.fill = \"cosine\"");
-  if (g.reference == "cosine_mode" && type == "box")
+  if (g.reference == "cosine_mode" && type == DomainType::Box)
     for (std::size_t i = 0; i < c.boundary.size(); ++i)
-      if (c.boundary[i].kind != "no_flux")
-        throw ConfigError(fmt::format("boundary[{}].kind", i), quoted(c.boundary[i].kind),
+      if (c.boundary[i].kind != PatchKind::NoFlux)
+        throw ConfigError(fmt::format("boundary[{}].kind", i), quoted(to_string(*c.boundary[i].kind)),
                           "diagnostics.reference = \"cosine_mode\" on a box needs every wall no-flux (a closed box)");
   if (g.reference == "cosine_mode" && !(pa.fill_amplitude > 0.0))
     throw ConfigError("particles.fill_amplitude", shown(pa.fill_amplitude),

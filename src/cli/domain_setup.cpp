@@ -30,8 +30,6 @@ double box_mean_square(const Vec3& lo, const Vec3& hi, int dim, const Vec3& c) {
   return s;
 }
 
-int axis_index(const std::string& a) { return a == "x" ? 0 : a == "y" ? 1 : 2; }
-
 }  // namespace
 
 int resolve_patch(const BuiltDomain& built, const std::string& name) {
@@ -54,7 +52,7 @@ BuiltDomain build_domain(const Config& c) {
   const Vec3 lo = project(d.lo, dim), hi = project(d.hi, dim);
 
   try {
-    if (d.type == "ball") {
+    if (d.type == DomainType::Ball) {
       const Vec3 ctr = project(d.center, dim);
       base = make_ball(dim, ctr, d.radius);
       out.centroid = ctr;
@@ -67,10 +65,10 @@ BuiltDomain build_domain(const Config& c) {
       };
       // The "north pole": the end of the last used axis.
       patch_center = [ctr, r, dim](int) { return std::optional<Vec3>(ctr + r * Vec3::Unit(dim - 1)); };
-    } else if (d.type == "box" || d.type == "periodic_box" || d.type == "free") {
-      if (d.type == "box") {
+    } else if (d.type == DomainType::Box || d.type == DomainType::PeriodicBox || d.type == DomainType::Free) {
+      if (d.type == DomainType::Box) {
         base = make_box(dim, lo, hi);
-      } else if (d.type == "periodic_box") {
+      } else if (d.type == DomainType::PeriodicBox) {
         base = make_periodic_box(dim, lo, hi);
       } else {
         base = make_free_space(dim, lo, hi);
@@ -86,7 +84,7 @@ BuiltDomain build_domain(const Config& c) {
         x[p / 2] = p % 2 == 0 ? lo[p / 2] : hi[p / 2];
         return std::optional<Vec3>(x);
       };
-    } else if (d.type == "cylinder") {
+    } else if (d.type == DomainType::Cylinder) {
       base = make_cylinder(d.end_a, d.end_b, d.radius);
       const Vec3 mid = 0.5 * (d.end_a + d.end_b);
       const double len = (d.end_b - d.end_a).norm(), r = d.radius;
@@ -102,8 +100,8 @@ BuiltDomain build_domain(const Config& c) {
         if (p == 2) return std::optional<Vec3>(b);
         return std::optional<Vec3>{};
       };
-    } else if (d.type == "square_pipe_obstacle") {
-      const int axis = dim == 2 ? 2 : axis_index(d.obstacle_axis);
+    } else if (d.type == DomainType::SquarePipeObstacle) {
+      const int axis = dim == 2 ? 2 : static_cast<int>(d.obstacle_axis);
       const Vec3 oc = project(d.obstacle_center.value_or(0.5 * (lo + hi)), dim);
       double clearance = std::numeric_limits<double>::infinity(), cross = clearance;
       for (int k = 0; k < dim; ++k)
@@ -141,13 +139,13 @@ BuiltDomain build_domain(const Config& c) {
       };
     }
   } catch (const InvalidArgument& e) {
-    throw ConfigError("domain", fmt::format("domain.type = \"{}\": {}", d.type, e.what()));
+    throw ConfigError("domain", fmt::format("domain.type = \"{}\": {}", to_string(d.type), e.what()));
   }
 
   if (!d.subpatches.empty()) {
     if (base->num_patches() == 0)
       throw ConfigError("domain.subpatch[0].on", "\"" + d.subpatches[0].on + "\"",
-                        "domain type \"" + d.type + "\" has no boundary patches");
+                        "domain type \"" + to_string(d.type) + "\" has no boundary patches");
     BuiltDomain probe;
     probe.domain = base;
     std::vector<SubPatch> subs;
@@ -177,7 +175,7 @@ BuiltDomain build_domain(const Config& c) {
 
   const double vol = out.domain->volume();
   if (!(vol > 0.0) || !std::isfinite(vol))
-    throw ConfigError("domain", fmt::format("domain.type = \"{}\": volume = {}: must be > 0 (empty domain)", d.type, vol));
+    throw ConfigError("domain", fmt::format("domain.type = \"{}\": volume = {}: must be > 0 (empty domain)", to_string(d.type), vol));
   return out;
 }
 

@@ -29,7 +29,7 @@ RunControl run_control(const Config& c, const Derived& d, const RunOptions& opti
   RunControl control;
   control.t_end = c.run.t_end;
   control.dt = d.dt;
-  control.adaptive = c.run.dt_mode == "adaptive";
+  control.adaptive = c.run.dt_mode == DtMode::Adaptive;
   control.max_steps = c.run.max_steps;
   control.checkpoint_interval = c.run.checkpoint_interval;
   control.stop = [stop_flag = options.stop_flag, stop_after_step = options.stop_after_step](const SimulationStep& s) {

@@ -123,12 +123,12 @@ void RunFiles::write_failed_particles(const Derived& d, double t) noexcept {
 void RunFiles::write_domain_surface() {
   const Domain& domain = run_.domain();
   bool surface = false;
-  if (run_.config().domain.type != "free") {
+  if (run_.config().domain.type != DomainType::Free) {
     const int cells = run_.config().run.dim == 3 ? 12 : 256;  // the sphere with its buffer: ~7k triangles, 0.14 MB
     SurfaceMesh mesh = boundary_surface(domain, 0.0, cells);
     std::vector<int> dirichlet;
     for (const PatchInfo& p : run_.patches())
-      if (p.kind == "dirichlet") dirichlet.push_back(p.id);
+      if (p.kind == PatchKind::Dirichlet) dirichlet.push_back(p.id);
     const double buffer = sim_.buffer().buffer_width;
     if (!dirichlet.empty() && buffer > 0.0) {
       const SurfaceMesh outer = boundary_surface(domain, buffer, cells, dirichlet);

@@ -38,10 +38,10 @@ std::unique_ptr<Reference> configured_reference(const Config& c, const Derived& 
   s.slab_held_at_hi = d.slab_held_at_hi;
   s.wavenumber = d.mode_wavenumber;
   s.x0 = c.domain.lo[0];
-  s.constant_dt = c.run.dt_mode == "fixed" ? d.dt : 0.0;
-  s.stepper = stepper_kind_from_string(c.solver.stepper);
-  s.time_scheme = time_scheme_from_string(c.solver.time_scheme);
-  s.explicit_scheme = explicit_scheme_from_string(c.solver.explicit_scheme);
+  s.constant_dt = c.run.dt_mode == DtMode::Fixed ? d.dt : 0.0;
+  s.stepper = c.solver.stepper;
+  s.time_scheme = c.solver.time_scheme;
+  s.explicit_scheme = c.solver.explicit_scheme;
   return make_reference(c.diagnostics.reference, s);
 }
 
@@ -132,7 +132,7 @@ void ProgressLine::show(const StepRecord& r, bool final_line) {
   if (!final_line && now - last_ < std::chrono::milliseconds(200)) return;
   last_ = now;
   // Adaptive dt: the number of steps is not known; time is.
-  const bool by_time = c_.run.dt_mode == "adaptive";
+  const bool by_time = c_.run.dt_mode == DtMode::Adaptive;
   const double done = by_time ? r.t : static_cast<double>(r.step);
   const double total = by_time ? c_.run.t_end : static_cast<double>(d_.steps_to_run);
   recent_.emplace_back(wall_(), done);
@@ -142,7 +142,7 @@ void ProgressLine::show(const StepRecord& r, bool final_line) {
   const double its = r.step > 0 ? static_cast<double>(sim_.totals().iterations) / static_cast<double>(r.step) : 0.0;
   std::fprintf(stderr, "\rstep %lld/%s  t=%.4g  n=%lld  M/M_inf=%.4f  it/step=%.1f  ETA %s   ",
                static_cast<long long>(r.step),
-               c_.run.dt_mode == "adaptive" ? "?" : std::to_string(d_.steps_to_run).c_str(), r.t,
+               by_time ? "?" : std::to_string(d_.steps_to_run).c_str(), r.t,
                static_cast<long long>(r.n_particles), r.mass_ratio, its, hms(eta).c_str());
   if (final_line) std::fputc('\n', stderr);
   std::fflush(stderr);

@@ -46,7 +46,7 @@ nlohmann::json reference_json(const Reference& ref) {
 nlohmann::json ledger_json(const ConfiguredRun& run, const otfp::Simulation& sim, const DriverSums& sums) {
   nlohmann::json patches = nlohmann::json::array();
   for (const PatchInfo& p : run.patches()) {
-    nlohmann::json j = {{"patch", p.name}, {"kind", p.kind}};
+    nlohmann::json j = {{"patch", p.name}, {"kind", to_string(p.kind)}};
     PatchLedger l;
     if (p.condition >= 0) l = sim.projection().ledger()[static_cast<std::size_t>(p.condition)];
     j["inserted"] = l.inserted;

@@ -71,7 +71,7 @@ ParticleSet read_fill_file(const Config& c, const DomainPtr& domain) {
 // Dirichlet patch (a run's final state holds its reservoir band); free space
 // takes any point.
 void check_fill_file(const Config& c, const otfp::Simulation& sim, const ParticleSet& ps) {
-  if (c.domain.type == "free") return;
+  if (c.domain.type == DomainType::Free) return;
   for (std::size_t p = 0; p < ps.size(); ++p) {
     const Vec3& x = ps.positions()[p];
     if (region_of(sim.domain(), sim.buffer(), x) == otfp::Region::Elsewhere)
@@ -100,20 +100,20 @@ RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded
   o.barrier_stiffness = c.solver.barrier_stiffness.value_or(0.0);
   o.kernel_tolerance = c.solver.kernel_tolerance;
   o.bounded = bounded;
-  o.stepper = stepper_kind_from_string(c.solver.stepper);
+  o.stepper = c.solver.stepper;
   const TreatmentSection& tr = c.treatment;
   TreatmentOptions& t = o.treatment;
-  t.no_flux = no_flux_treatment_from_string(tr.no_flux);
-  t.dirichlet = dirichlet_mode_from_string(tr.dirichlet);
-  t.reservoir_profile = reservoir_profile_from_string(tr.reservoir_profile);
-  t.reservoir_control = reservoir_control_from_string(tr.reservoir_control);
+  t.no_flux = tr.no_flux;
+  t.dirichlet = tr.dirichlet;
+  t.reservoir_profile = tr.reservoir_profile;
+  t.reservoir_control = tr.reservoir_control;
   t.reservoir_width = tr.reservoir_width;
   t.reservoir_sublayers = static_cast<int>(tr.reservoir_sublayers);
   t.reservoir_tolerance = tr.reservoir_tolerance;
   t.reservoir_candidates = static_cast<int>(tr.reservoir_candidates);
-  t.neumann_outflow = tr.neumann_outflow == "nearest" ? NeumannOutflow::NearestParticles : NeumannOutflow::Layer;
-  t.absorb_stranded = tr.stranded == "absorb";
-  t.spacing_rule = spacing_rule_from_string(c.particles.spacing_rule);
+  t.neumann_outflow = tr.neumann_outflow;
+  t.absorb_stranded = tr.absorb_stranded;
+  t.spacing_rule = c.particles.spacing_rule;
   return o;
 }
 
@@ -198,7 +198,7 @@ void ConfiguredRun::check_magnitudes(const std::vector<ConstantBoundaryData>& da
   };
   point_near("diagnostics.center", c.diagnostics.center);
   point_near("particles.fill_center", c.particles.fill_center);
-  if (c.particles.fill == "gaussian" && !(c.particles.fill_sigma <= far))
+  if (c.particles.fill == Fill::Gaussian && !(c.particles.fill_sigma <= far))
     throw ConfigError("particles.fill_sigma", fmt::format("{}", c.particles.fill_sigma),
                       fmt::format("must be at most 1e6 domain sizes ({:.4g})", far));
   const double speed = length(c.physics.velocity, Vec3::Zero());
@@ -264,27 +264,28 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
         throw ConfigError(fmt::format("boundary[{}].patch", i), quoted(b.patch),
                           fmt::format("same patch as boundary[{}]", j));
     PatchInfo& info = patches_[static_cast<std::size_t>(id)];
-    info.kind = b.kind;
+    info.kind = *b.kind;
     info.value = b.value.value_or(0.0);
     info.t_start = b.t_start;
     info.t_end = b.t_end;
   }
   bool any_dirichlet = false, any_layer = false;
   for (const PatchInfo& p : patches_) {
-    any_dirichlet = any_dirichlet || p.kind == "dirichlet";
+    any_dirichlet = any_dirichlet || p.kind == PatchKind::Dirichlet;
     // The layer b is used by Neumann patches and by Dirichlet patches unless
     // they use the reservoir, whose band width is w instead.
-    const bool uses_layer = p.kind == "neumann" || (p.kind == "dirichlet" && c.treatment.dirichlet == "layer");
+    const bool uses_layer = p.kind == PatchKind::Neumann ||
+                            (p.kind == PatchKind::Dirichlet && c.treatment.dirichlet == DirichletMode::Layer);
     any_layer = any_layer || uses_layer;
   }
 
   // The library's data per patch (no-flux patches have none).
   std::vector<ConstantBoundaryData> data;
   for (PatchInfo& p : patches_) {
-    if (p.kind == "no_flux") continue;
+    if (p.kind == PatchKind::NoFlux) continue;
     ConstantBoundaryData bd;
     bd.patch = p.id;
-    bd.kind = p.kind == "dirichlet" ? PatchKind::Dirichlet : PatchKind::Neumann;
+    bd.kind = p.kind;
     bd.value = p.value;
     if (bd.kind == PatchKind::Neumann) {
       bd.t_start = p.t_start;
@@ -319,7 +320,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
                       fmt::format("has no effect here: no patch uses the boundary layer (it serves Neumann patches, "
                                   "and Dirichlet patches with treatment.dirichlet = \"layer\"; here there is no Neumann "
                                   "patch and treatment.dirichlet = \"{}\"); remove it",
-                                  c.treatment.dirichlet));
+                                  to_string(c.treatment.dirichlet)));
   if (any_layer && !(d.layer_b < 0.5 * st.built.min_extent))
     throw ConfigError("particles.layer_b",
                       fmt::format("{}{}", d.layer_b, c.particles.layer_b > 0.0 ? "" : " (sqrt(length_L dr))"),
@@ -334,7 +335,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
 
   // Net Neumann inflow over [0, t_end] (f is the outward flux: inflow is -f).
   for (const PatchInfo& p : patches_)
-    if (p.kind == "neumann")
+    if (p.kind == PatchKind::Neumann)
       d.neumann_net_inflow += -p.value * p.area *
                               overlap(0.0, c.run.t_end, p.t_start,
                                       p.t_end.value_or(std::numeric_limits<double>::infinity()));
@@ -347,22 +348,22 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   } else if (any_dirichlet) {
     d.M_inf = rp.M_inf;
     d.M_inf_rule = "area-weighted mean Dirichlet g x |Omega|";
-  } else if (pa.fill == "file") {
+  } else if (pa.fill == Fill::File) {
     st.file_particles = read_fill_file(c, domain_);
     d.M_inf = st.file_particles->total_mass() + d.neumann_net_inflow;
     d.M_inf_rule = "mass of particles.fill_file + net Neumann inflow over [0, t_end]";
-  } else if (pa.fill != "empty" && pa.fill_mass) {
+  } else if (pa.fill != Fill::Empty && pa.fill_mass) {
     d.M_inf = *pa.fill_mass + d.neumann_net_inflow;
     d.M_inf_rule = "particles.fill_mass + net Neumann inflow over [0, t_end]";
   } else if (pa.mass) {
-    const double n0 = pa.fill == "empty" ? 0.0 : static_cast<double>(pa.fill_count.value_or(pa.n_inf));
+    const double n0 = pa.fill == Fill::Empty ? 0.0 : static_cast<double>(pa.fill_count.value_or(pa.n_inf));
     d.M_inf = n0 * *pa.mass + d.neumann_net_inflow;
     d.M_inf_rule = "initial fill mass + net Neumann inflow over [0, t_end]";
     if (!(d.M_inf > 0.0)) {
       d.M_inf = static_cast<double>(pa.n_inf) * *pa.mass;
       d.M_inf_rule = "particles.n_inf x particles.mass";
     }
-  } else if (pa.fill == "empty" && d.neumann_net_inflow > 0.0) {
+  } else if (pa.fill == Fill::Empty && d.neumann_net_inflow > 0.0) {
     d.M_inf = d.neumann_net_inflow;
     d.M_inf_rule = "net Neumann inflow over [0, t_end]";
   } else {
@@ -374,7 +375,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
                       "must be > 0: set diagnostics.M_inf or particles.mass");
   d.particle_mass = pa.mass ? *pa.mass : d.M_inf / static_cast<double>(pa.n_inf);
 
-  if (pa.fill_arrangement == "lattice") {
+  if (pa.fill_arrangement == Arrangement::Lattice) {
     // Cell-centred lattice of spacing ~dr: round(edge / dr) points per axis.
     double total = 1.0;  // in double first: an extreme box must not overflow the count
     for (int k = 0; k < dim; ++k) total *= std::max(1.0, std::round((c.domain.hi[k] - c.domain.lo[k]) / d.dr));
@@ -387,10 +388,10 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
           std::max<std::int64_t>(1, std::llround((c.domain.hi[k] - c.domain.lo[k]) / d.dr));
       d.fill_count *= d.lattice_counts[static_cast<std::size_t>(k)];
     }
-  } else if (pa.fill == "file") {
+  } else if (pa.fill == Fill::File) {
     if (!st.file_particles) st.file_particles = read_fill_file(c, domain_);
     d.fill_count = static_cast<std::int64_t>(st.file_particles->size());
-  } else if (pa.fill != "empty") {
+  } else if (pa.fill != Fill::Empty) {
     if (pa.fill_count) {
       d.fill_count = *pa.fill_count;
     } else if (pa.fill_mass) {
@@ -413,7 +414,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
                         "set run.max_particles to change it)",
                         d.max_particles, kBytesPerParticle);
   if (d.fill_count > d.max_particles)
-    throw ConfigError(pa.fill == "file"       ? "particles.fill_file"
+    throw ConfigError(pa.fill == Fill::File   ? "particles.fill_file"
                       : pa.fill_count         ? "particles.fill_count"
                       : pa.fill_mass          ? "particles.fill_mass"
                                               : "particles.n_inf",
@@ -422,10 +423,10 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   // The free-space reference grows by 2 d kappa M t and its error is scaled
   // by that growth over the run: with no particles at t = 0 both are 0.
   if (c.diagnostics.reference == "free_space" && d.fill_count == 0)
-    throw ConfigError("particles.fill", quoted(pa.fill),
+    throw ConfigError("particles.fill", quoted(to_string(pa.fill)),
                       "diagnostics.reference = \"free_space\" needs particles at t = 0 (its growth 2 d kappa M t "
                       "scales with their mass M)");
-  if (pa.fill == "cosine") {
+  if (pa.fill == Fill::Cosine) {
     // At least two particle spacings per wavelength: a finer mode cannot be
     // sampled (its measured amplitude is noise about 0, and the error column,
     // scaled by a(0), would not be finite).
@@ -461,10 +462,10 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
       d.reference_J_inf = 0.6 * d.M_inf * *d.reference_radius * *d.reference_radius;
   } else if (ref == "crank_slab") {
     d.reference_length = c.diagnostics.reference_length;
-    if (!d.reference_length && c.domain.type == "box") {
+    if (!d.reference_length && c.domain.type == DomainType::Box) {
       int face = -1, count = 0;
       for (const PatchInfo& p : patches_)
-        if (p.kind == "dirichlet") {
+        if (p.kind == PatchKind::Dirichlet) {
           face = p.id;
           ++count;
         }
@@ -489,7 +490,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   SimulationOptions so = simulation_options(rp, ro);
   so.seed = static_cast<std::uint64_t>(c.run.seed);
   so.max_particles = d.max_particles;
-  so.projection.dirichlet_target = dirichlet_target_from_string(pa.dirichlet_target);
+  so.projection.dirichlet_target = pa.dirichlet_target;
   const TreatmentSection& tr = c.treatment;
   const SolverSection& s = c.solver;
   NeighborOptions nb;
@@ -498,20 +499,20 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   nb.skin_factor = s.skin_factor;
   if (so.stepper == StepperKind::Implicit) {
     ImplicitOptions& io = so.implicit;
-    io.minimizer.backend = backend_from_string(s.backend);
-    io.minimizer.algorithm = algorithm_from_string(s.algorithm);
+    io.minimizer.backend = s.backend;
+    io.minimizer.algorithm = s.algorithm;
     io.minimizer.max_iterations = static_cast<int>(s.max_iterations);
     io.minimizer.max_evaluations = static_cast<int>(s.max_evaluations);
     io.minimizer.lbfgs_memory = static_cast<int>(s.lbfgs_memory);
     io.displacement_tolerance = s.displacement_tolerance;
     io.relative_tolerance = s.relative_tolerance;
-    io.width_mode = width_mode_from_string(s.width_mode);
-    io.width_metric = width_metric_from_string(s.width_metric);
-    io.time_scheme = time_scheme_from_string(s.time_scheme);
-    io.predictor = predictor_from_string(s.predictor);
+    io.width_mode = s.width_mode;
+    io.width_metric = s.width_metric;
+    io.time_scheme = s.time_scheme;
+    io.predictor = s.predictor;
     io.error_smoothing = s.error_smoothing;
-    io.error_measure = error_measure_from_string(s.error_measure);
-    io.stopping_norm = stopping_norm_from_string(s.stopping_norm);
+    io.error_measure = s.error_measure;
+    io.stopping_norm = s.stopping_norm;
     io.max_norm_factor = s.max_norm_factor;
     io.max_width_factor = s.max_width_factor;
     io.neighbor = nb;
@@ -519,7 +520,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     io.energy_tolerance = s.energy_tolerance;
   } else {
     ExplicitOptions& eo = so.explicit_options;
-    eo.scheme = explicit_scheme_from_string(s.explicit_scheme);
+    eo.scheme = s.explicit_scheme;
     eo.neighbor = nb;
   }
   so.velocity = c.physics.velocity;
@@ -590,7 +591,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
         throw ConfigError("domain.hi", fmt::format("[{}, {}, {}]", c.domain.hi[0], c.domain.hi[1], c.domain.hi[2]),
                           std::string(e.what()) + ": enlarge the box or raise particles.n_inf");
       case Stage::Walls:
-        throw ConfigError("treatment.no_flux", "\"" + tr.no_flux + "\"",
+        throw ConfigError("treatment.no_flux", quoted(to_string(tr.no_flux)),
                           std::string("walls: ") + e.what() + "; set treatment.no_flux = \"barrier\"");
       case Stage::Stepper:
         break;
@@ -615,7 +616,7 @@ nlohmann::json ConfiguredRun::describe() const {
     pj.push_back({{"id", pi.id},
                   {"name", pi.name},
                   {"area", pi.area},
-                  {"kind", pi.kind},
+                  {"kind", to_string(pi.kind)},
                   {"value", pi.value},
                   {"t_start", pi.t_start},
                   {"t_end", opt(pi.t_end)}});
@@ -664,11 +665,13 @@ ParticleSet ConfiguredRun::initial_particles(Rng& rng) const {
     fill = *state_->file_particles;
   } else if (d.fill_count > 0) {  // a lattice is filled whatever particles.fill says
     FillOptions fo;
-    fo.shape = c.particles.fill == "empty" ? FillShape::Uniform : fill_shape_from_string(c.particles.fill);
+    fo.shape = c.particles.fill == Fill::Gaussian ? FillShape::Gaussian
+               : c.particles.fill == Fill::Cosine ? FillShape::Cosine
+                                                  : FillShape::Uniform;  // uniform, or a lattice with fill = "empty"
     fo.count = d.fill_count;
     fo.width_s = d.width_s;
     fo.mass = d.particle_mass;
-    fo.lattice = c.particles.fill_arrangement == "lattice";
+    fo.lattice = c.particles.fill_arrangement == Arrangement::Lattice;
     fo.lattice_counts = d.lattice_counts;
     fo.lo = c.domain.lo;
     fo.hi = c.domain.hi;

@@ -40,6 +40,21 @@ class ConfigError : public std::runtime_error {
   std::string key_;
 };
 
+// The choices of the configuration are enums once parsed (the table in
+// config_table.cpp holds their names): the library's own where the choice is a
+// library option (otfp/enums.hpp), and these for what only a configuration
+// file describes.
+enum class DtMode { Fixed, Adaptive };
+enum class DomainType { Ball, Box, Cylinder, PeriodicBox, SquarePipeObstacle, Free };
+enum class Axis { X, Y, Z };
+enum class Fill { Empty, Uniform, Gaussian, Cosine, File };  // the shapes of FillShape, no particles, or a file
+enum class Arrangement { Random, Lattice };
+std::string to_string(DtMode m);
+std::string to_string(DomainType t);
+std::string to_string(Axis a);
+std::string to_string(Fill f);
+std::string to_string(Arrangement a);
+
 struct RunSection {
   int dim = 3;
   double t_end = RunSetupOptions{}.t_end;
@@ -47,7 +62,7 @@ struct RunSection {
   double dt_factor = RunSetupOptions{}.dt_factor;
   std::int64_t seed = static_cast<std::int64_t>(SimulationOptions{}.seed);
   std::int64_t max_steps = 0;  // 0: no limit
-  std::string dt_mode = "fixed";  // fixed | adaptive (implicit stepper, docs/stepper.md)
+  DtMode dt_mode = DtMode::Fixed;  // fixed | adaptive (implicit stepper, docs/stepper.md)
   double time_tolerance = TimeStepControlOptions{}.tolerance;   // adaptive: largest local error estimate per step, in blob widths
   std::optional<double> dt_min;   // adaptive: absent = 1e-3 x the initial dt
   std::optional<double> dt_max;   // adaptive: absent = t_end
@@ -65,7 +80,7 @@ struct SubPatchSpec {
 };
 
 struct DomainSection {
-  std::string type = "ball";  // ball | box | cylinder | periodic_box | square_pipe_obstacle | free
+  DomainType type = DomainType::Ball;  // ball | box | cylinder | periodic_box | square_pipe_obstacle | free
   Vec3 center = Vec3::Zero();
   double radius = 1.0;
   Vec3 lo = Vec3::Zero();
@@ -74,21 +89,21 @@ struct DomainSection {
   Vec3 end_b = Vec3::UnitX();
   std::optional<Vec3> obstacle_center;
   std::optional<double> obstacle_radius;
-  std::string obstacle_axis = "z";
+  Axis obstacle_axis = Axis::Z;  // x | y | z
   std::vector<SubPatchSpec> subpatches;
 };
 
 struct ParticlesSection {
   std::int64_t n_inf = RunSetupOptions{}.n_inf;
   std::optional<double> mass;
-  std::string spacing_rule = to_string(TreatmentOptions{}.spacing_rule);  // cube | sphere_radius (default: cube; sphere_radius in 3-D under treatment.preset = "papers")
+  SpacingRule spacing_rule = TreatmentOptions{}.spacing_rule;  // cube | sphere_radius (default: cube; sphere_radius in 3-D under treatment.preset = "papers")
   double beta_factor = RunSetupOptions{}.beta_factor;
   double width_exponent = WidthScaling{}.exponent;           // q: s = s_rule(dr) (dr / dr_ref)^(q - 1), in (0, 2]
   std::int64_t width_reference_n = static_cast<std::int64_t>(WidthScaling{}.reference_n);  // n at which dr_ref is taken (>= 1)
   double layer_b = 0.0;   // 0: sqrt(length_L dr)
   double length_L = 0.0;  // 0: from the domain
-  std::string dirichlet_target = to_string(ProjectionOptions{}.dirichlet_target);  // cell_integral | paper_eq34
-  std::string fill = "empty";  // empty | uniform | gaussian | cosine | file
+  DirichletTarget dirichlet_target = ProjectionOptions{}.dirichlet_target;  // cell_integral | paper_eq34
+  Fill fill = Fill::Empty;  // empty | uniform | gaussian | cosine | file
   // fill = "file": the particle file, resolved against the directory of the
   // configuration file (parse_config_string: the current directory).
   std::optional<std::string> fill_file;
@@ -96,7 +111,7 @@ struct ParticlesSection {
   std::optional<double> fill_mass;
   std::optional<Vec3> fill_center;
   double fill_sigma = 0.1;
-  std::string fill_arrangement = "random";  // random | lattice (box-shaped domains)
+  Arrangement fill_arrangement = Arrangement::Random;  // random | lattice (box-shaped domains)
   double fill_amplitude = 0.5;  // a of the cosine fill 1 + a cos(k x)
   std::int64_t fill_mode = 1;   // k = 2 pi fill_mode / (hi_x - lo_x)
 };
@@ -110,7 +125,7 @@ struct PhysicsSection {
 
 struct BoundarySpec {
   std::string patch;
-  std::string kind;  // dirichlet | neumann | no_flux
+  std::optional<PatchKind> kind;  // dirichlet | neumann | no_flux: required, absent until given
   std::optional<double> value;
   double t_start = 0.0;
   std::optional<double> t_end;
@@ -119,17 +134,17 @@ struct BoundarySpec {
 // The keys that set a library option take their default from the library's
 // option struct (one default per option; tests/test_config.cpp pins the values).
 struct SolverSection {
-  std::string stepper = "implicit";  // implicit | explicit
-  std::string backend = to_string(ImplicitOptions{}.minimizer.backend);      // ceres | nlopt
-  std::string algorithm = to_string(ImplicitOptions{}.minimizer.algorithm);  // lbfgs | ... (by backend)
-  std::string explicit_scheme = to_string(ExplicitOptions{}.scheme);         // euler27 | rk4 | euler_exact
-  std::string width_mode = to_string(ImplicitOptions{}.width_mode);          // fixed | per_particle
-  std::string width_metric = "as_printed";  // as_printed | exact (WidthMetric has no names in the library)
-  std::string time_scheme = to_string(ImplicitOptions{}.time_scheme);        // euler | bdf2
-  std::string predictor = to_string(ImplicitOptions{}.predictor);            // none | extrapolate | damped
+  StepperKind stepper = StepperKind::Implicit;  // implicit | explicit
+  Backend backend = ImplicitOptions{}.minimizer.backend;      // ceres | nlopt
+  Algorithm algorithm = ImplicitOptions{}.minimizer.algorithm;  // lbfgs | ... (by backend)
+  ExplicitScheme explicit_scheme = ExplicitOptions{}.scheme;         // euler27 | rk4 | euler_exact
+  WidthMode width_mode = ImplicitOptions{}.width_mode;          // fixed | per_particle
+  WidthMetric width_metric = ImplicitOptions{}.width_metric;  // as_printed | exact
+  TimeScheme time_scheme = ImplicitOptions{}.time_scheme;        // euler | bdf2
+  Predictor predictor = ImplicitOptions{}.predictor;            // none | extrapolate | damped
   double error_smoothing = ImplicitOptions{}.error_smoothing;  // error estimate: smoothing length in widths
-  std::string error_measure = to_string(ImplicitOptions{}.error_measure);    // density | displacement
-  std::string stopping_norm = to_string(ImplicitOptions{}.stopping_norm);    // energy | max
+  ErrorMeasure error_measure = ImplicitOptions{}.error_measure;    // density | displacement
+  StoppingNorm stopping_norm = ImplicitOptions{}.stopping_norm;    // energy | max
   double max_norm_factor = ImplicitOptions{}.max_norm_factor;  // energy norm: largest residual / RMS tolerance
   double displacement_tolerance = ImplicitOptions{}.displacement_tolerance;
   double relative_tolerance = ImplicitOptions{}.relative_tolerance;
@@ -150,18 +165,18 @@ struct SolverSection {
 // The defaults are the "converging" preset (docs/validation.md, study 5);
 // treatment.preset = "papers" restores Sec. 4.2 (see apply_treatment_preset).
 struct TreatmentSection {
-  std::string preset = to_string(TreatmentPreset::Converging); // converging | papers: the defaults of the keys below
-  std::string no_flux = to_string(TreatmentOptions{}.no_flux); // barrier | images (image blobs at every non-Dirichlet wall)
-  std::string dirichlet = to_string(TreatmentOptions{}.dirichlet); // layer (Sec. 4.2) | reservoir (persistent band outside the face)
+  TreatmentPreset preset = TreatmentPreset::Converging; // converging | papers: the defaults of the keys below
+  NoFluxTreatment no_flux = TreatmentOptions{}.no_flux; // barrier | images (image blobs at every non-Dirichlet wall)
+  DirichletMode dirichlet = TreatmentOptions{}.dirichlet; // layer (Sec. 4.2) | reservoir (persistent band outside the face)
   double reservoir_width = TreatmentOptions{}.reservoir_width; // band thickness in units of the kernel cut-off r_c of the blobs
   std::int64_t reservoir_sublayers = TreatmentOptions{}.reservoir_sublayers; // 0: round(2 w / dr), half a spacing per sublayer
-  std::string reservoir_profile = to_string(TreatmentOptions{}.reservoir_profile); // uniform (g) | odd (2 g - interior mirror density)
-  std::string reservoir_control = to_string(TreatmentOptions{}.reservoir_control); // quiet (tolerance band, density-ranked placement) | exact (issue 10)
+  ReservoirProfile reservoir_profile = TreatmentOptions{}.reservoir_profile; // uniform (g) | odd (2 g - interior mirror density)
+  ReservoirControl reservoir_control = TreatmentOptions{}.reservoir_control; // quiet (tolerance band, density-ranked placement) | exact (issue 10)
   double reservoir_tolerance = TreatmentOptions{}.reservoir_tolerance; // quiet: correct a sublayer when |N - X| > max(1, this sqrt(X))
   std::int64_t reservoir_candidates = TreatmentOptions{}.reservoir_candidates; // quiet: fixed candidate points per target particle
-  std::string neumann_outflow = "nearest";  // the library's NeumannOutflow::NearestParticles (an older name)
+  NeumannOutflow neumann_outflow = TreatmentOptions{}.neumann_outflow;  // written "nearest" for NearestParticles (an older name)
   // layer (B_l only) | nearest (beyond B_l when it runs empty)
-  std::string stranded = "keep";            // keep | absorb: particles beyond a Dirichlet face (layer treatment)
+  bool absorb_stranded = TreatmentOptions{}.absorb_stranded;  // written keep | absorb: particles beyond a Dirichlet face (layer treatment)
 };
 
 struct DiagnosticsSection {

@@ -33,7 +33,7 @@ struct PatchInfo {
   int id = 0;
   std::string name;
   double area = 0.0;
-  std::string kind = "no_flux";  // dirichlet | neumann | no_flux
+  PatchKind kind = PatchKind::NoFlux;
   double value = 0.0;            // g or f
   double t_start = 0.0;
   std::optional<double> t_end;
