@@ -59,6 +59,10 @@ void ProjectionOptions::validate(bool require_reservoir_domain) const {
   require(std::isfinite(reservoir_tolerance) && reservoir_tolerance >= 0.5 && reservoir_tolerance <= 1e6,
           "boundary.reservoir_tolerance", reservoir_tolerance,
           "must be in [0.5, 1e6] (particles; below 0.5 a correction could round to none)");
+  require(std::isfinite(reservoir_integral_time) && reservoir_integral_time >= 0.0, "boundary.reservoir_integral_time",
+          reservoir_integral_time, "must be finite and >= 0 (0: no integral action)");
+  require(std::isfinite(reservoir_group_target) && reservoir_group_target >= 1.0 && reservoir_group_target <= 1e9,
+          "boundary.reservoir_group_target", reservoir_group_target, "must be in [1, 1e9] (particles)");
   require(reservoir_candidates >= 1 && reservoir_candidates <= 1000, "boundary.reservoir_candidates",
           reservoir_candidates, "must be in [1, 1000] (candidate points per target particle)");
   require(reservoir_volume_samples >= 10000, "boundary.reservoir_volume_samples", reservoir_volume_samples,
@@ -338,7 +342,7 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
 
     if (c.kind == PatchKind::Dirichlet && reservoir_mode) {
       if (options_.reservoir_control == ReservoirControl::Quiet)
-        project_reservoir_quiet(i, sublayer_members[i], particles, t_new, call, to_remove);
+        project_reservoir_quiet(i, sublayer_members[i], particles, t_new, dt, call, to_remove);
       else
         project_reservoir(i, sublayer_members[i], particles, t_new, rng, call, to_remove);
     } else if (c.kind == PatchKind::Dirichlet) {

@@ -24,6 +24,10 @@ void TreatmentOptions::validate() const {
   require(std::isfinite(reservoir_tolerance) && reservoir_tolerance >= 0.0, "reservoir_tolerance",
           reservoir_tolerance, "must be finite and >= 0");
   require(reservoir_candidates >= 1, "reservoir_candidates", reservoir_candidates, "must be >= 1");
+  require(std::isfinite(reservoir_integral) && reservoir_integral >= 0.0, "reservoir_integral", reservoir_integral,
+          "must be finite and >= 0 (0: no integral action)");
+  require(std::isfinite(reservoir_group_target) && reservoir_group_target >= 1.0, "reservoir_group_target",
+          reservoir_group_target, "must be finite and >= 1 (particles)");
 }
 
 TreatmentOptions treatment_preset(TreatmentPreset preset, int dim) {
@@ -143,6 +147,9 @@ SimulationOptions simulation_options(const RunParameters& p, const RunSetupOptio
     po.reservoir_control = o.treatment.reservoir_control;
     po.reservoir_tolerance = o.treatment.reservoir_tolerance;
     po.reservoir_candidates = o.treatment.reservoir_candidates;
+    // tau in the band's own diffusion time w^2 / kappa.
+    po.reservoir_integral_time = o.treatment.reservoir_integral * p.reservoir_width * p.reservoir_width / o.kappa;
+    po.reservoir_group_target = o.treatment.reservoir_group_target;
   }
   so.fill_reservoir_at_start = true;
   so.stepper = o.stepper;

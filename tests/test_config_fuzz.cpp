@@ -425,7 +425,7 @@ TEST(ConfigFuzz, AcceptedMutantsRunCleanly) {
     // 3 of the sanitizer pass's 5 minutes of tests.
     double g_max = 0.0;
     for (const PatchInfo& p : run->patches())
-      if (p.kind == PatchKind::Dirichlet) g_max = std::max(g_max, std::abs(p.value));
+      if (p.kind == otfp::PatchKind::Dirichlet) g_max = std::max(g_max, std::abs(p.value));
     if (g_max * d.volume > 50.0 * d.M_inf) continue;
 #endif
     ++ran;

@@ -78,6 +78,8 @@ struct ProjectionOptions {
   ReservoirControl reservoir_control = ReservoirControl::Quiet;    // Reservoir: tolerance band + placement, or exact counts
   double reservoir_tolerance = 1.0;    // Reservoir, Quiet: correct sublayer j when its deficit exceeds this (particles)
   int reservoir_candidates = 4;        // Reservoir, Quiet: fixed candidate points per target particle of a sublayer
+  double reservoir_integral_time = 0.0;  // Reservoir, Quiet: tau of the deficit's time integral within the tolerance (0: off)
+  double reservoir_group_target = 64.0;  // Reservoir, Quiet: sublayers held together until their targets reach this (particles)
   bool absorb_exterior = false;                           // Layer: remove particles outside Omega on Dirichlet patches
   // Throws InvalidArgument naming the field, the value and the rule. The
   // reservoir fields are checked only with dirichlet_mode = Reservoir;
@@ -124,6 +126,19 @@ class BoundaryProjection {
   //     put, one at a time, at the candidate point where it falls short most
   //     (reservoir_candidates fixed points per target particle). The sublayer
   //     next to the back wall (K >= 2) is held only within 5% of its target.
+  //     Consecutive sublayers are held as one group until their targets add
+  //     up to reservoir_group_target particles (the tolerance applies to the
+  //     group's summed deficit).
+  //     Integral action (reservoir_integral_time tau > 0): while no group
+  //     is beyond its tolerance, the summed deficit D of the held groups
+  //     (all but the back sublayer) is integrated, I <- I + sign(D)
+  //     max(|D| - q, 0) min(1, dt / tau), q = |held sublayers| / (|Omega| +
+  //     |band|) the change of D by one particle once spread, and one
+  //     particle is inserted (removed) in the held group furthest off
+  //     whenever I >= 1 (<= -1): D then averages to within q of zero instead
+  //     of resting anywhere in the tolerance band (a 1-D band of ~4
+  //     particles rested a quarter short), and a settled state stays a
+  //     fixed point.
   //     No random numbers are drawn, and a settled state is left unchanged.
   //  2'. Exact control: each sublayer is set to exactly T_j particles: surplus ones are deleted
   //     uniformly at random, missing ones inserted uniformly in the sublayer.
@@ -191,7 +206,7 @@ class BoundaryProjection {
     Aabb box;                                   // sampling box around the band
     std::vector<double> volume;                 // |sublayer j|
     std::vector<std::vector<Vec3>> quadrature;  // uniform points of sublayer j (one for constant g)
-    std::vector<double> carry;                  // r_j in [0, 1), in particles (Exact control)
+    std::vector<double> carry;                  // r_j in [0, 1), in particles (Exact); the deficit's integral (Quiet)
     std::vector<std::vector<Vec3>> candidates;  // Quiet control: fixed placement candidates of sublayer j
     std::string volume_rule;                    // "exterior_shell" | "slab" | "monte_carlo"
     // Odd profile: the wall of the patch, the volume of each sublayer's
@@ -210,7 +225,7 @@ class BoundaryProjection {
                          std::vector<std::size_t>& to_remove);
   // The same with the quiet control (ProjectionOptions::reservoir_control).
   void project_reservoir_quiet(std::size_t i, std::vector<std::vector<std::size_t>>& sublayer_members,
-                               ParticleSet& particles, double t_new, PatchLedger& call,
+                               ParticleSet& particles, double t_new, double dt, PatchLedger& call,
                                std::vector<std::size_t>& to_remove);
   // Real target count of sublayer j at t (odd profile applied).
   double reservoir_profile_count(std::size_t i, std::size_t j, double t) const;

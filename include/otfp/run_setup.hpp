@@ -37,6 +37,8 @@ struct TreatmentOptions {
   int reservoir_sublayers = 0;        // reservoir: sublayers of the band; 0: round(2 w / dr), half a spacing each
   double reservoir_tolerance = ProjectionOptions{}.reservoir_tolerance;  // reservoir, quiet: correct a sublayer beyond this deficit (particles)
   int reservoir_candidates = ProjectionOptions{}.reservoir_candidates;  // reservoir, quiet: fixed candidate points per target particle
+  double reservoir_integral = 10.0;   // reservoir, quiet: integral action's tau in band diffusion times w^2 / kappa (0: off)
+  double reservoir_group_target = ProjectionOptions{}.reservoir_group_target;  // reservoir, quiet: sublayers held together up to this target (particles)
   NeumannOutflow neumann_outflow = NeumannOutflow::NearestParticles;  // outlets: B_l only, or beyond when it runs empty
   bool absorb_stranded = false;       // layer: remove particles stranded beyond a Dirichlet face
   SpacingRule spacing_rule = SpacingRule::Cube;  // how dr follows from |Omega| and n_inf (37)

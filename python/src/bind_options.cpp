@@ -101,6 +101,8 @@ void bind_options(py::module_& m) {
       .field("reservoir_control", &ProjectionOptions::reservoir_control, "quiet | exact")
       .field("reservoir_tolerance", &ProjectionOptions::reservoir_tolerance, "quiet: deficit (particles) to act on")
       .field("reservoir_candidates", &ProjectionOptions::reservoir_candidates, "quiet: candidate points per particle")
+      .field("reservoir_integral_time", &ProjectionOptions::reservoir_integral_time, "quiet: integral action's tau (0: off)")
+      .field("reservoir_group_target", &ProjectionOptions::reservoir_group_target, "quiet: sublayers held together up to this target")
       .field("absorb_exterior", &ProjectionOptions::absorb_exterior, "layer: remove stranded exterior particles")
       // The reservoir band's domain is built by the Simulation, not given here.
       .validated([](const ProjectionOptions& o) { o.validate(/*require_reservoir_domain=*/false); })

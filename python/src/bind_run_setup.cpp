@@ -27,6 +27,8 @@ void bind_run_setup(py::module_& m) {
       .field("reservoir_sublayers", &TreatmentOptions::reservoir_sublayers, "0: round(2 w / dr)")
       .field("reservoir_tolerance", &TreatmentOptions::reservoir_tolerance, "quiet: deficit corrected (particles)")
       .field("reservoir_candidates", &TreatmentOptions::reservoir_candidates, "quiet: candidate points per particle")
+      .field("reservoir_integral", &TreatmentOptions::reservoir_integral, "quiet: integral action's tau in w^2/kappa (0: off)")
+      .field("reservoir_group_target", &TreatmentOptions::reservoir_group_target, "quiet: sublayers held together up to this target")
       .field("neumann_outflow", &TreatmentOptions::neumann_outflow, "layer | nearest_particles")
       .field("absorb_stranded", &TreatmentOptions::absorb_stranded, "layer: remove particles beyond a Dirichlet face")
       .field("spacing_rule", &TreatmentOptions::spacing_rule, "cube | sphere_radius")

@@ -451,6 +451,10 @@ const std::vector<Field>& fields() {
             named({ReservoirControl::Quiet, ReservoirControl::Exact})),
         key("treatment.reservoir_tolerance", &TreatmentSection::reservoir_tolerance)
             .with(interval('[', 0.5, 1e6, ']', "must be in [0.5, 1000000] (particles)")),
+        key("treatment.reservoir_integral", &TreatmentSection::reservoir_integral)
+            .with(interval('[', 0, 1e6, ']', "must be in [0, 1000000] (band diffusion times w^2 / kappa; 0: off)")),
+        key("treatment.reservoir_group", &TreatmentSection::reservoir_group)
+            .with(interval('[', 1, 1e9, ']', "must be in [1, 1000000000] (particles)")),
         key("treatment.reservoir_candidates", &TreatmentSection::reservoir_candidates)
             .with(interval('[', 1, 1000, ']', "must be in [1, 1000] (candidate points per target particle)")),
         choice("treatment.neumann_outflow", &TreatmentSection::neumann_outflow,

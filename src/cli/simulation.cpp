@@ -111,6 +111,8 @@ RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded
   t.reservoir_sublayers = static_cast<int>(tr.reservoir_sublayers);
   t.reservoir_tolerance = tr.reservoir_tolerance;
   t.reservoir_candidates = static_cast<int>(tr.reservoir_candidates);
+  t.reservoir_integral = tr.reservoir_integral;
+  t.reservoir_group_target = tr.reservoir_group;
   t.neumann_outflow = tr.neumann_outflow;
   t.absorb_stranded = tr.absorb_stranded;
   t.spacing_rule = c.particles.spacing_rule;
@@ -155,6 +157,8 @@ std::string with_keys(const std::string& text, const std::string& name, const st
       {"reservoir_sublayers", "treatment.reservoir_sublayers"},
       {"reservoir_tolerance", "treatment.reservoir_tolerance"},
       {"reservoir_candidates", "treatment.reservoir_candidates"},
+      {"reservoir_integral", "treatment.reservoir_integral"},
+      {"reservoir_group_target", "treatment.reservoir_group"},
   };
   const std::string what = e.what();
   for (const auto& [field, key] : keys)

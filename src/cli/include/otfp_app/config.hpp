@@ -174,6 +174,8 @@ struct TreatmentSection {
   ReservoirControl reservoir_control = TreatmentOptions{}.reservoir_control; // quiet (tolerance band, density-ranked placement) | exact (issue 10)
   double reservoir_tolerance = TreatmentOptions{}.reservoir_tolerance; // quiet: correct a sublayer when |N - X| > max(1, this sqrt(X))
   std::int64_t reservoir_candidates = TreatmentOptions{}.reservoir_candidates; // quiet: fixed candidate points per target particle
+  double reservoir_integral = TreatmentOptions{}.reservoir_integral; // quiet: integral action's tau in w^2 / kappa (0: off)
+  double reservoir_group = TreatmentOptions{}.reservoir_group_target; // quiet: sublayers held together up to this target (particles)
   NeumannOutflow neumann_outflow = TreatmentOptions{}.neumann_outflow;  // written "nearest" for NearestParticles (an older name)
   // layer (B_l only) | nearest (beyond B_l when it runs empty)
   bool absorb_stranded = TreatmentOptions{}.absorb_stranded;  // written keep | absorb: particles beyond a Dirichlet face (layer treatment)
