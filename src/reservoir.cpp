@@ -592,7 +592,9 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
           integral -= sign;
         }
       }
-      r.carry[0] = integral;
+      // At most one particle a call: what a long step adds beyond that is
+      // dropped, not owed (no wind-up to pay off later as an overshoot).
+      r.carry[0] = std::clamp(integral, -1.0, 1.0);
     }
   }
   long total_insert = 0;
@@ -653,7 +655,11 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
       remainder.emplace_back(share - static_cast<double>(whole), k);
     }
     std::stable_sort(remainder.begin(), remainder.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
-    for (std::size_t pass = 0; given < total && pass < 2; ++pass)
+    // Largest remainders first, then round-robin over the sublayers that
+    // can still take one: a removal capped by a sublayer's members goes to
+    // the others (|change| is at most the group's members, so this ends).
+    for (std::size_t pass = 0; given < total; ++pass) {
+      long before = given;
       for (const auto& [frac, k] : remainder) {
         if (given == total) break;
         if (pass == 0 && !(frac > 0.0)) continue;
@@ -661,6 +667,8 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
         ++quota[js[k]];
         ++given;
       }
+      if (pass > 0 && given == before) break;  // nothing can take more
+    }
     for (std::size_t j : js) quota[j] *= static_cast<long>(sign);
   }
 

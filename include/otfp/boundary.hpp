@@ -78,7 +78,7 @@ struct ProjectionOptions {
   ReservoirControl reservoir_control = ReservoirControl::Quiet;    // Reservoir: tolerance band + placement, or exact counts
   double reservoir_tolerance = 1.0;    // Reservoir, Quiet: correct sublayer j when its deficit exceeds this (particles)
   int reservoir_candidates = 4;        // Reservoir, Quiet: fixed candidate points per target particle of a sublayer
-  double reservoir_integral_time = 0.0;  // Reservoir, Quiet: tau of the deficit's time integral within the tolerance (0: off)
+  double reservoir_integral_time = 0.0;  // Reservoir, Quiet: tau of the deficit's time integral within the tolerance (0: off; setup_run: 10 w^2 / kappa)
   double reservoir_group_target = 64.0;  // Reservoir, Quiet: sublayers held together until their targets reach this (particles)
   bool absorb_exterior = false;                           // Layer: remove particles outside Omega on Dirichlet patches
   // Throws InvalidArgument naming the field, the value and the rule. The
@@ -119,16 +119,16 @@ class BoundaryProjection {
   //     sublayer (tails beyond the back wall folded back) and T_j its target
   //     g |sublayer j| (uniform) or 2 g |sublayer j| - M'_j |sublayer j| /
   //     |mirror j| (odd, M'_j the blob mass in the sublayer's mirror image
-  //     inside Omega; clamped to [0, 2 g |sublayer j|]). Sublayer j is left
-  //     alone while |D_j| <= reservoir_tolerance; otherwise round(D_j)
-  //     particles leave where the blob density (images across
+  //     inside Omega; clamped to [0, 2 g |sublayer j|]). Consecutive
+  //     sublayers are held as one group until their targets add up to
+  //     reservoir_group_target particles. A group is left alone while its
+  //     summed deficit |D| <= reservoir_tolerance; otherwise round(D)
+  //     particles, shared among its sublayers by their own deficits (largest
+  //     remainders), leave where the blob density (images across
   //     set_mirror_walls() included) exceeds its pointwise target most, or are
   //     put, one at a time, at the candidate point where it falls short most
   //     (reservoir_candidates fixed points per target particle). The sublayer
   //     next to the back wall (K >= 2) is held only within 5% of its target.
-  //     Consecutive sublayers are held as one group until their targets add
-  //     up to reservoir_group_target particles (the tolerance applies to the
-  //     group's summed deficit).
   //     Integral action (reservoir_integral_time tau > 0): while no group
   //     is beyond its tolerance, the summed deficit D of the held groups
   //     (all but the back sublayer) is integrated, I <- I + sign(D)

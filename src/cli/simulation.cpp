@@ -268,6 +268,8 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
         throw ConfigError(fmt::format("boundary[{}].patch", i), quoted(b.patch),
                           fmt::format("same patch as boundary[{}]", j));
     PatchInfo& info = patches_[static_cast<std::size_t>(id)];
+    if (!b.kind)  // a Config built in code, not read and validated
+      throw ConfigError(fmt::format("boundary[{}].kind", i), "(missing)", "required: one of dirichlet, neumann, no_flux");
     info.kind = *b.kind;
     info.value = b.value.value_or(0.0);
     info.t_start = b.t_start;
