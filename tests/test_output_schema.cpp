@@ -24,8 +24,8 @@ using otfp::app::StepRecord;
 using otfp::app::series_columns;
 
 // The first cells of the `| column | unit | meaning |` table of the
-// "## `series.csv`" section of docs/outputs.md, backticks removed.
-std::vector<std::string> documented_series_columns() {
+// "## `<file>`" section of docs/outputs.md, backticks removed.
+std::vector<std::string> documented_columns(const std::string& file_name) {
   const std::filesystem::path file = std::filesystem::path(OTFP_SOURCE_DIR) / "docs" / "outputs.md";
   std::ifstream in(file);
   EXPECT_TRUE(in) << file;
@@ -35,7 +35,7 @@ std::vector<std::string> documented_series_columns() {
   while (std::getline(in, line)) {
     if (line.rfind("## ", 0) == 0) {
       if (section) break;
-      section = line == "## `series.csv`";
+      section = line == "## `" + file_name + "`";
       continue;
     }
     if (!section) continue;
@@ -55,7 +55,28 @@ std::vector<std::string> documented_series_columns() {
 TEST(OutputSchema, DocsListExactlyTheColumnsOfTheTable) {
   std::vector<std::string> table;
   for (const auto& c : series_columns()) table.push_back(c.name);
-  EXPECT_EQ(documented_series_columns(), table);
+  EXPECT_EQ(documented_columns("series.csv"), table);
+}
+
+// timing.csv from the same kind of table: the docs list its columns, and its
+// header and rows are written from it.
+TEST(OutputSchema, TimingColumnsAreDocumentedAndWritten) {
+  std::vector<std::string> table;
+  for (const auto& c : otfp::app::timing_columns()) table.push_back(c.name);
+  EXPECT_EQ(documented_columns("timing.csv"), table);
+  const SeriesLayout timing = SeriesLayout::timing();
+  std::string joined;
+  for (const std::string& n : table) joined += (joined.empty() ? "" : ",") + n;
+  EXPECT_EQ(timing.header(), joined + "\n");
+  StepRecord r;
+  r.step = 7;
+  r.t = 0.25;
+  r.wall_seconds = 1.5;
+  r.step_seconds = 0.125;
+  r.solver_seconds = 0.0625;
+  r.list_seconds = 0.03125;
+  r.reference_values = {0.5, 0.25};  // not timing.csv's: left out
+  EXPECT_EQ(timing.row(r), "7,0.25,1.5,0.125,0.0625,0.03125\n");
 }
 
 TEST(OutputSchema, EveryColumnHasOneGetterOfItsKindAndAMeaning) {

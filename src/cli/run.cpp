@@ -15,13 +15,6 @@ namespace otfp::app {
 
 namespace {
 
-const std::string kTimingHeader = "step,t,wall_seconds,step_seconds,solver_seconds,list_seconds\n";
-
-std::string timing_row(const StepRecord& r) {
-  return fmt::format("{},{},{},{},{},{}\n", r.step, r.t, r.wall_seconds, r.step_seconds, r.solver_seconds,
-                     r.list_seconds);
-}
-
 // The library's time loop: fixed steps on its grid t_k = k dt (kept in the
 // checkpoint: a resumed run keeps its grid when its dt is unchanged, and its
 // step when run.t_end moved), or the adaptive controller.
@@ -86,6 +79,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
   // Column layout of series.csv (fixed by the configuration, not by the run).
   const SeriesLayout layout(d.J_inf.has_value(), reference && reference->has_mass_blob_error(),
                             reference ? reference->columns() : std::vector<std::string>{});
+  const SeriesLayout timing = SeriesLayout::timing();
   RowMaker rows(d, sim, reference.get(), wall);
   ProgressLine progress(c, d, sim, wall, options.progress);
   RunFiles files(*this, sim, options.out_dir, options.stop_flag != nullptr,
@@ -96,7 +90,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
   try {
     auto emit = [&](const StepRecord& r, bool final_row) {
       const bool snapshot = r.step == 0 || final_row || (c.run.vtk_interval > 0 && r.step % c.run.vtk_interval == 0);
-      files.append(layout.row(r), timing_row(r), r, snapshot, rows.region());
+      files.append(layout.row(r), timing.row(r), r, snapshot, rows.region());
       if (options.keep_series) result.series.push_back(r);
       last = r;
       result.rows = true;
@@ -110,7 +104,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       ParticleSet fill = initial_particles(rng);
       rows.sums.n0 = static_cast<std::int64_t>(fill.size());
       rows.sums.M0 = fill.total_mass();
-      files.create(layout.header(), kTimingHeader);
+      files.create(layout.header(), timing.header());
       // Algorithm 1 runs in the library; the reservoir (if any) is filled
       // before the first step, counted as step 0's insertions.
       sim.start(std::move(fill), rng, 0.0);
@@ -118,7 +112,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
     } else {
       ResumeStart start;
       try {
-        start = read_resume(sim, rows, reference.get(), files, control, c, layout.header(), kTimingHeader,
+        start = read_resume(sim, rows, reference.get(), files, control, c, layout.header(), timing.header(),
                             fingerprint);
       } catch (const ResumeRefused& e) {
         result.status = "refused";

@@ -79,6 +79,30 @@ const std::vector<SeriesColumn>& series_columns() {
   return columns;
 }
 
+const std::vector<SeriesColumn>& timing_columns() {
+  static const std::vector<SeriesColumn> columns = {
+      col("step", "step number k", &R::step, kSeriesOnly),
+      col("t", "time t_k", &R::t, kSeriesOnly),
+      col("wall_seconds", "wall time since the run (or the resumed run) started", &R::wall_seconds, kSeriesOnly),
+      col("step_seconds", "wall time of the step", &R::step_seconds, kSeriesOnly),
+      col("solver_seconds", "time inside the minimiser itself", &R::solver_seconds, kSeriesOnly),
+      col("list_seconds", "time building neighbour lists", &R::list_seconds, kSeriesOnly),
+  };
+  return columns;
+}
+
+SeriesLayout SeriesLayout::timing() {
+  SeriesLayout layout;
+  layout.with_reference_ = false;
+  for (const SeriesColumn& c : timing_columns()) {
+    layout.columns_.push_back(&c);
+    if (!layout.header_.empty()) layout.header_ += ',';
+    layout.header_ += c.name;
+  }
+  layout.header_ += "\n";
+  return layout;
+}
+
 SeriesLayout::SeriesLayout(bool has_j_inf, bool has_mass_blob_error, std::vector<std::string> reference_columns)
     : reference_columns_(std::move(reference_columns)) {
   for (const SeriesColumn& c : series_columns()) {
@@ -120,8 +144,9 @@ std::string SeriesLayout::row(const StepRecord& r) const {
         break;
     }
   }
-  for (std::size_t i = 0; i < r.reference_values.size(); ++i)
-    num(r.reference_values[i], reference_columns_.at(i).c_str());
+  if (with_reference_)
+    for (std::size_t i = 0; i < r.reference_values.size(); ++i)
+      num(r.reference_values[i], reference_columns_.at(i).c_str());
   line.back() = '\n';
   return line;
 }

@@ -1,6 +1,6 @@
 #pragma once
-// The one table of series.csv's columns (docs/outputs.md lists the same, a
-// test checks it): their names, meanings, where a StepRecord holds them and
+// The one table of series.csv's columns (and timing.csv's; docs/outputs.md
+// lists the same, a test checks it): their names, meanings, where a StepRecord holds them and
 // how they are written. It drives series.csv's header and rows, and
 // summary.json's "final" (runs.csv of `otfp sweep` reads "final").
 #include <cstdint>
@@ -39,10 +39,15 @@ struct SeriesColumn {
 // (Reference::columns()) follow them.
 const std::vector<SeriesColumn>& series_columns();
 
-// The columns of one run's series.csv.
+// The columns of timing.csv: the wall-clock times, kept out of series.csv so
+// that series.csv is the same on every run.
+const std::vector<SeriesColumn>& timing_columns();
+
+// The columns of one run's series.csv (or of timing.csv).
 class SeriesLayout {
  public:
   SeriesLayout(bool has_j_inf, bool has_mass_blob_error, std::vector<std::string> reference_columns);
+  static SeriesLayout timing();  // timing.csv
   // The header line, '\n' included.
   const std::string& header() const { return header_; }
   // The row of r, '\n' included; throws std::runtime_error naming the column
@@ -50,9 +55,11 @@ class SeriesLayout {
   std::string row(const StepRecord& r) const;
 
  private:
+  SeriesLayout() = default;
   std::vector<const SeriesColumn*> columns_;
   std::vector<std::string> reference_columns_;
   std::string header_;
+  bool with_reference_ = true;  // the reference's columns follow (series.csv; not timing.csv)
 };
 
 // summary.json "final": the in_final columns of r (absent optionals null).
