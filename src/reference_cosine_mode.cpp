@@ -12,8 +12,8 @@ namespace otfp {
 
 namespace {
 
-const char* const kMeasured = "mode_amplitude";
-const char* const kScaleRule = "the initial amplitude a(0)";
+const char* const kModeMeasured = "mode_amplitude";
+const char* const kModeScaleRule = "the initial amplitude a(0)";
 
 class CosineModeReference : public Reference {
  public:
@@ -34,7 +34,7 @@ class CosineModeReference : public Reference {
     const double A = cosine_mode_amplitude(*s.particles, k, setup_.x0);
     if (!amplitude_.started()) {
       A0_ = A;
-      amplitude_ = ErrorStatistics(kMeasured, std::abs(A0_), kScaleRule);
+      amplitude_ = ErrorStatistics(kModeMeasured, std::abs(A0_), kModeScaleRule);
     }
     const double ra = A0_ * analytic::cosine_mode_decay(setup_.kappa, k, s.t);
     ReferenceRow row;
@@ -84,7 +84,7 @@ class CosineModeReference : public Reference {
             {"fit_a", fit_a_}};
   }
   void load_state(const ReferenceState& s) override {
-    ErrorStatistics amplitude(kMeasured, 1.0, kScaleRule);
+    ErrorStatistics amplitude(kModeMeasured, 1.0, kModeScaleRule);
     amplitude.load_state(state_entry(s, "mode_amplitude", ErrorStatistics::kStateSize));
     const double A0 = state_entry(s, "A0", 1)[0];
     const bool open = state_entry(s, "fit_open", 1)[0] != 0.0;

@@ -9,8 +9,8 @@ namespace otfp {
 
 namespace {
 
-const char* const kMeasured = "second_moment";
-const char* const kScaleRule = "2 d kappa M t_end (the reference growth over the run)";
+const char* const kMomentMeasured = "second_moment";
+const char* const kMomentScaleRule = "2 d kappa M t_end (the reference growth over the run)";
 
 class FreeSpaceReference : public Reference {
  public:
@@ -32,7 +32,7 @@ class FreeSpaceReference : public Reference {
     if (!moment_.started()) {
       S0_ = S;
       M0_ = s.initial_mass;
-      moment_ = ErrorStatistics(kMeasured, 2.0 * dim * setup_.kappa * s.measures.mass_total * setup_.t_end, kScaleRule);
+      moment_ = ErrorStatistics(kMomentMeasured, 2.0 * dim * setup_.kappa * s.measures.mass_total * setup_.t_end, kMomentScaleRule);
     }
     const double rs = S0_ + 2.0 * dim * setup_.kappa * M0_ * s.t;
     ReferenceRow row;
@@ -56,7 +56,7 @@ class FreeSpaceReference : public Reference {
     return {{"second_moment", moment_.state()}, {"S0", {S0_}}, {"M0", {M0_}}};
   }
   void load_state(const ReferenceState& s) override {
-    ErrorStatistics moment(kMeasured, 1.0, kScaleRule);
+    ErrorStatistics moment(kMomentMeasured, 1.0, kMomentScaleRule);
     moment.load_state(state_entry(s, "second_moment", ErrorStatistics::kStateSize));
     const double S0 = state_entry(s, "S0", 1)[0], M0 = state_entry(s, "M0", 1)[0];
     moment_ = moment;

@@ -40,7 +40,8 @@ namespace {
 
 constexpr double kPi = std::numbers::pi;
 
-std::string quoted(const std::string& s) { return "\"" + s + "\""; }
+// The value as the message shows it (ConfigError makes the line one line).
+std::string in_quotes(const std::string& s) { return "\"" + s + "\""; }
 
 nlohmann::json to_json(const Vec3& v) { return nlohmann::json::array({v[0], v[1], v[2]}); }
 
@@ -75,7 +76,7 @@ void check_fill_file(const Config& c, const otfp::Simulation& sim, const Particl
   for (std::size_t p = 0; p < ps.size(); ++p) {
     const Vec3& x = ps.positions()[p];
     if (region_of(sim.domain(), sim.buffer(), x) == otfp::Region::Elsewhere)
-      throw ConfigError("particles.fill_file", quoted(*c.particles.fill_file),
+      throw ConfigError("particles.fill_file", in_quotes(*c.particles.fill_file),
                         fmt::format("particle id {} at ({}, {}, {}) lies outside the domain and its Dirichlet buffers "
                                     "(signed distance {})",
                                     ps.ids()[p], x[0], x[1], x[2], sim.domain().signed_distance(x)));
@@ -261,11 +262,11 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     const BoundarySpec& b = c.boundary[i];
     const int id = domain_->num_patches() > 0 ? detail::resolve_patch(st.built, b.patch) : -1;
     if (id < 0)
-      throw ConfigError(fmt::format("boundary[{}].patch", i), quoted(b.patch),
+      throw ConfigError(fmt::format("boundary[{}].patch", i), in_quotes(b.patch),
                         "unknown patch (patches: " + detail::patch_names(st.built) + ")");
     for (std::size_t j = 0; j < i; ++j)
       if (detail::resolve_patch(st.built, c.boundary[j].patch) == id)
-        throw ConfigError(fmt::format("boundary[{}].patch", i), quoted(b.patch),
+        throw ConfigError(fmt::format("boundary[{}].patch", i), in_quotes(b.patch),
                           fmt::format("same patch as boundary[{}]", j));
     PatchInfo& info = patches_[static_cast<std::size_t>(id)];
     if (!b.kind)  // a Config built in code, not read and validated
@@ -429,7 +430,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   // The free-space reference grows by 2 d kappa M t and its error is scaled
   // by that growth over the run: with no particles at t = 0 both are 0.
   if (c.diagnostics.reference == "free_space" && d.fill_count == 0)
-    throw ConfigError("particles.fill", quoted(to_string(pa.fill)),
+    throw ConfigError("particles.fill", in_quotes(to_string(pa.fill)),
                       "diagnostics.reference = \"free_space\" needs particles at t = 0 (its growth 2 d kappa M t "
                       "scales with their mass M)");
   if (pa.fill == Fill::Cosine) {
@@ -597,7 +598,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
         throw ConfigError("domain.hi", fmt::format("[{}, {}, {}]", c.domain.hi[0], c.domain.hi[1], c.domain.hi[2]),
                           std::string(e.what()) + ": enlarge the box or raise particles.n_inf");
       case Stage::Walls:
-        throw ConfigError("treatment.no_flux", quoted(to_string(tr.no_flux)),
+        throw ConfigError("treatment.no_flux", in_quotes(to_string(tr.no_flux)),
                           std::string("walls: ") + e.what() + "; set treatment.no_flux = \"barrier\"");
       case Stage::Stepper:
         break;
