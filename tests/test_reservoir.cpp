@@ -230,6 +230,45 @@ TEST(QuietReservoir, CorrectsOnlyBeyondItsToleranceAndFillsTheHole) {
   EXPECT_EQ(static_cast<long>(ps.size() + taken.size()), bp.ledger()[0].inserted - bp.ledger()[0].removed);
 }
 
+// A crowd: particles added to one sublayer of a filled band (the square's
+// band is groups of several sublayers; a blob spans about three of them)
+// are taken out again in full: the group's correction is shared among its
+// sublayers by their own excess, and a sublayer asked for more than it can
+// give passes the rest on. Where they leave is the rule's (largest excess
+// of the blob density over its target): in a band filled by the projection
+// alone, not relaxed by steps, that is partly at its side walls, not only
+// at the crowd, so the test counts and does not locate.
+TEST(QuietReservoir, CrowdIsTakenOutInFull) {
+  const Held s = square();
+  const double g = s.g, m = s.options.particle_mass;
+  const double w = s.options.projection.reservoir_thickness;
+  const int K = s.options.projection.reservoir_sublayers;
+  ASSERT_GE(K, 4);
+  const auto ext = make_box(2, Vec3(-w, 0, 0), Vec3(1, 1, 0));
+  ProjectionOptions po = s.options.projection;
+  po.reservoir_domain = ext;
+  BoundaryProjection bp(s.domain, {PatchCondition{0, PatchKind::Dirichlet, [g](const Vec3&, double) { return g; }, true}},
+                        po, m, s.pp.width_s);
+  bp.set_mirror_walls(mirror_walls(*ext));
+  ParticleSet ps(2);
+  Rng rng(9);
+  for (int pass = 0; pass < 10; ++pass) {
+    const PatchLedger l = bp.apply(ps, 0.0, 0.0, rng);
+    if (pass > 0 && l.inserted == 0 && l.removed == 0) break;
+  }
+  // The crowd: six particles along the middle of sublayer 2, y in [0.3, 0.7].
+  const int j = 2, crowd = 6;
+  const double depth = (j + 0.5) * w / K;
+  for (int k = 0; k < crowd; ++k) ps.add(Vec3(-depth, 0.3 + 0.08 * k, 0.0), s.pp.width_s, m);
+  const PatchLedger out = bp.apply(ps, 0.0, 0.0, rng);
+  EXPECT_EQ(out.inserted, 0);
+  EXPECT_GE(out.removed, crowd - 2);
+  EXPECT_LE(out.removed, crowd + 2);
+  // Nothing more to do: the next call changes nothing.
+  const PatchLedger after = bp.apply(ps, 0.0, 0.0, rng);
+  EXPECT_EQ(after.inserted + after.removed, 0);
+}
+
 namespace {
 // Fills from empty with 40 steps of h, then steps of factor x h until a step
 // inserts and removes nothing and costs at most 3 evaluations (30 at most).
