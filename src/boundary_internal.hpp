@@ -23,6 +23,9 @@ inline constexpr double kCountTolerance = 1e-9;
 // Fixed seeds of the reservoir volumes / quadrature and of the points on A_l.
 inline constexpr std::uint64_t kReservoirSeed = 0x7265736572766f69ULL;
 inline constexpr std::uint64_t kSurfaceSeed = 0x7375726661636570ULL;
+// Quiet reservoir: at least this many fixed candidate points per sublayer
+// (reservoir.cpp builds them, reservoir_quiet.cpp ranks them).
+inline constexpr std::size_t kMinCandidates = 64;
 
 inline Vec3 uniform_in(const Aabb& box, int dim, Rng& rng) {
   Vec3 x = Vec3::Zero();
