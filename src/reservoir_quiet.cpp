@@ -193,9 +193,10 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
   // a quarter too little and the slab settled 10% low at every n. The
   // integral I of the held groups' summed deficit D, I <- I + sign(D)
   // max(|D| - q, 0) min(1, dt / tau), adds (removes) a particle whenever
-  // |I| >= 1, so that D averages to within q of zero. One particle, once spread over Omega and the band, moves D by only
-  // the held sublayers' share of that volume, q = |held| / (|Omega| +
-  // |band|), and before it has spread by up to a whole particle: a D within
+  // |I| >= 1, so that D averages to within q of zero. One particle, once
+  // spread over Omega and the band, moves D by only the held sublayers'
+  // share of that volume, q = |held| / (|Omega| + |band|), and before it
+  // has spread by up to a whole particle: a D within
   // q of zero is not integrated (one particle more or less is no closer once
   // the step's response is counted), so that a settled state stays a fixed
   // point instead of cycling one particle in and out. The integral is

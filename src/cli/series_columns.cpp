@@ -93,7 +93,6 @@ const std::vector<SeriesColumn>& timing_columns() {
 
 SeriesLayout SeriesLayout::timing() {
   SeriesLayout layout;
-  layout.with_reference_ = false;
   for (const SeriesColumn& c : timing_columns()) {
     layout.columns_.push_back(&c);
     if (!layout.header_.empty()) layout.header_ += ',';
@@ -144,9 +143,9 @@ std::string SeriesLayout::row(const StepRecord& r) const {
         break;
     }
   }
-  if (with_reference_)
-    for (std::size_t i = 0; i < r.reference_values.size(); ++i)
-      num(r.reference_values[i], reference_columns_.at(i).c_str());
+  // The reference's columns (none in timing.csv); a row of a run with a
+  // reference holds one value per column.
+  for (std::size_t i = 0; i < reference_columns_.size(); ++i) num(r.reference_values.at(i), reference_columns_[i].c_str());
   line.back() = '\n';
   return line;
 }

@@ -59,7 +59,6 @@ class SeriesLayout {
   std::vector<const SeriesColumn*> columns_;
   std::vector<std::string> reference_columns_;
   std::string header_;
-  bool with_reference_ = true;  // the reference's columns follow (series.csv; not timing.csv)
 };
 
 // summary.json "final": the in_final columns of r (absent optionals null).
