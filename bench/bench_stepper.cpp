@@ -14,6 +14,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdlib>
 #include <ctime>
 
@@ -22,6 +23,9 @@
 #include "otfp/implicit_stepper.hpp"
 #include "otfp/parameters.hpp"
 #include "otfp/simulation.hpp"
+#ifdef OTFP_WITH_TAO
+#include "otfp/tao.hpp"
+#endif
 
 using namespace otfp;
 
@@ -82,12 +86,22 @@ void set_measured_tolerances(ImplicitOptions& o) {
   if (const char* norm = std::getenv("OTFP_BENCH_STOPPING_NORM")) o.stopping_norm = stopping_norm_from_string(norm);
 }
 
-// Args: backend (0 Ceres, 1 NLopt), widths (0 fixed, 1 per particle), dt factor.
+// The benchmarks' backend argument: 0 Ceres, 1 NLopt, 2 TAO (a build with otfp::mpi).
+Backend bench_backend(std::int64_t arg) {
+  if (arg == 0) return Backend::Ceres;
+  if (arg == 1) return Backend::Nlopt;
+#ifdef OTFP_WITH_TAO
+  register_tao_backend();
+#endif
+  return Backend::Tao;
+}
+
+// Args: backend (0 Ceres, 1 NLopt, 2 TAO), widths (0 fixed, 1 per particle), dt factor.
 void BM_ImplicitStep(benchmark::State& state) {
   Cloud c = make_cloud();
   ImplicitOptions o;
   set_measured_tolerances(o);
-  o.minimizer.backend = state.range(0) == 0 ? Backend::Ceres : Backend::Nlopt;
+  o.minimizer.backend = bench_backend(state.range(0));
   o.width_mode = state.range(1) == 0 ? WidthMode::Fixed : WidthMode::PerParticle;
   o.rho_ref = 1.0 / c.ball->volume();
   if (const char* tol = std::getenv("OTFP_BENCH_TOLERANCE")) o.displacement_tolerance = std::atof(tol);
@@ -97,14 +111,14 @@ void BM_ImplicitStep(benchmark::State& state) {
 }
 
 // Issue 11: the predictor and the time scheme at large steps. Args: backend
-// (0 Ceres, 1 NLopt), widths (0 fixed, 1 per particle), dt factor, predictor
+// (0 Ceres, 1 NLopt, 2 TAO), widths (0 fixed, 1 per particle), dt factor, predictor
 // (0 none, 1 extrapolate, 2 damped), scheme (0 Euler, 1 BDF2). Settled: 5
 // warm-up steps at the same dt before the 5 timed ones.
 ImplicitOptions large_step_options(benchmark::State& state, const Cloud& c) {
   ImplicitOptions o;
   set_measured_tolerances(o);
   set_measured_tolerances(o);
-  o.minimizer.backend = state.range(0) == 0 ? Backend::Ceres : Backend::Nlopt;
+  o.minimizer.backend = bench_backend(state.range(0));
   o.width_mode = state.range(1) == 0 ? WidthMode::Fixed : WidthMode::PerParticle;
   o.predictor = static_cast<Predictor>(state.range(3));
   o.time_scheme = state.range(4) == 0 ? TimeScheme::Euler : TimeScheme::Bdf2;
@@ -279,11 +293,17 @@ BENCHMARK(BM_SimulationStep)
     ->UseRealTime();
 BENCHMARK(BM_ImplicitStep)
     ->ArgsProduct({{0, 1}, {0, 1}, {1, 10, 100}})
+#ifdef OTFP_WITH_TAO
+    ->ArgsProduct({{2}, {0}, {1, 10, 100}})
+#endif
     ->Iterations(5)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK(BM_LargeStep)
     ->ArgsProduct({{0, 1}, {0}, {10, 100}, {0, 1, 2}, {0, 1}})
+#ifdef OTFP_WITH_TAO
+    ->ArgsProduct({{2}, {0}, {10, 100}, {0}, {0, 1}})
+#endif
     ->Iterations(5)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();

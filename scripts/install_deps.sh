@@ -6,7 +6,8 @@ pkgs=(build-essential cmake g++ pkg-config
       libgtest-dev libgmock-dev libbenchmark-dev
       libcli11-dev libtomlplusplus-dev libfmt-dev nlohmann-json3-dev
       python3 python3-matplotlib python3-numpy
-      pybind11-dev python3-dev python3-pytest)
+      pybind11-dev python3-dev python3-pytest
+      libpetsc-real3.18-dev mpi-default-dev)  # otfp::mpi, the TAO backend (OTFP_WITH_MPI)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

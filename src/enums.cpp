@@ -6,6 +6,7 @@ std::string to_string(Backend b) {
   switch (b) {
     case Backend::Ceres: return "ceres";
     case Backend::Nlopt: return "nlopt";
+    case Backend::Tao: return "tao";
   }
   return "unknown";
 }
@@ -36,9 +37,9 @@ std::string to_string(TerminationReason r) {
 }
 
 Backend backend_from_string(const std::string& s) {
-  for (Backend b : {Backend::Ceres, Backend::Nlopt})
+  for (Backend b : {Backend::Ceres, Backend::Nlopt, Backend::Tao})
     if (s == to_string(b)) return b;
-  require(false, "solver.backend", s, "must be one of: ceres, nlopt");
+  require(false, "solver.backend", s, "must be one of: ceres, nlopt, tao");
   return Backend::Ceres;
 }
 

@@ -1,6 +1,7 @@
 #include "otfp/minimizer.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -20,7 +21,13 @@ double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-bool offered_by(Backend b, Algorithm a) {
+// The optional backends' runners (TAO), set by their component. Atomic: a
+// program may register while another thread validates options.
+std::atomic<detail::BackendRunner> tao_runner{nullptr};
+
+}  // namespace
+
+bool algorithm_offered(Backend b, Algorithm a) {
   switch (a) {
     case Algorithm::Lbfgs: return true;
     case Algorithm::Bfgs:
@@ -32,11 +39,25 @@ bool offered_by(Backend b, Algorithm a) {
   return false;
 }
 
-std::string allowed_algorithms(Backend b) {
-  return b == Backend::Ceres ? "lbfgs, bfgs, nonlinear_cg" : "lbfgs, tnewton, var2, mma";
+std::string offered_algorithms(Backend b) {
+  switch (b) {
+    case Backend::Ceres: return "lbfgs, bfgs, nonlinear_cg";
+    case Backend::Nlopt: return "lbfgs, tnewton, var2, mma";
+    case Backend::Tao: return "lbfgs";
+  }
+  return "";
 }
 
-}  // namespace
+bool backend_available(Backend b) {
+  return b == Backend::Ceres || b == Backend::Nlopt || (b == Backend::Tao && tao_runner.load() != nullptr);
+}
+
+namespace detail {
+void set_backend_runner(Backend backend, BackendRunner runner) {
+  require(backend == Backend::Tao, "backend", to_string(backend), "only optional backends (tao) are registered");
+  tao_runner.store(runner);
+}
+}  // namespace detail
 
 // ---------------------------------------------------------------- Objective
 
@@ -71,10 +92,13 @@ void MinimizerOptions::validate() const {
   require(max_iterations >= 1, "solver.max_iterations", max_iterations, "must be >= 1");
   require(max_evaluations >= 1, "solver.max_evaluations", max_evaluations, "must be >= 1");
   require(lbfgs_memory >= 1, "solver.lbfgs_memory", lbfgs_memory, "must be >= 1");
-  require(backend == Backend::Ceres || backend == Backend::Nlopt, "solver.backend",
+  require(backend == Backend::Ceres || backend == Backend::Nlopt || backend == Backend::Tao, "solver.backend",
           static_cast<double>(static_cast<int>(backend)), "unknown backend");
-  require(offered_by(backend, algorithm), "solver.algorithm", to_string(algorithm),
-          "not offered by backend '" + to_string(backend) + "' (allowed: " + allowed_algorithms(backend) + ")");
+  require(backend_available(backend), "solver.backend", to_string(backend),
+          "not available in this program (TAO needs a build with OTFP_WITH_MPI=ON, PETSc found, and "
+          "otfp::register_tao_backend() called)");
+  require(algorithm_offered(backend, algorithm), "solver.algorithm", to_string(algorithm),
+          "not offered by backend '" + to_string(backend) + "' (allowed: " + offered_algorithms(backend) + ")");
 }
 
 // ---------------------------------------------------------------- TrackedObjective
@@ -198,8 +222,11 @@ MinimizerSummary minimize(Objective& objective, std::vector<double>& z, const Mi
   const std::vector<double> z_start = z;
   detail::BackendResult r;
   try {
-    r = options.backend == Backend::Ceres ? detail::run_ceres(tracked, z, start, options)
-                                          : detail::run_nlopt(tracked, z, start, options);
+    switch (options.backend) {
+      case Backend::Ceres: r = detail::run_ceres(tracked, z, start, options); break;
+      case Backend::Nlopt: r = detail::run_nlopt(tracked, z, start, options); break;
+      case Backend::Tao: r = tao_runner.load()(tracked, z, start, options); break;
+    }
   } catch (...) {
     z = z_start;  // a half-finished run leaves no trace
     throw;

@@ -1,6 +1,6 @@
 #pragma once
-// Private glue between minimize() and the two backend adapters. No Ceres or
-// NLopt types here either: each adapter includes its own library.
+// Private glue between minimize() and the backend adapters. No Ceres, NLopt
+// or PETSc types here either: each adapter includes its own library.
 #include <cstddef>
 #include <exception>
 #include <string>
@@ -78,6 +78,12 @@ struct BackendResult {
   double final_measure = 0.0;
   std::string message;
 };
+
+using BackendRunner = BackendResult (*)(TrackedObjective&, std::vector<double>&, const StartPoint&,
+                                        const MinimizerOptions&);
+
+// The optional backends (TAO) register their runner here; nullptr unregisters.
+void set_backend_runner(Backend backend, BackendRunner runner);
 
 BackendResult run_ceres(TrackedObjective& objective, std::vector<double>& z, const StartPoint& start,
                         const MinimizerOptions& options);

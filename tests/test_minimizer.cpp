@@ -1,4 +1,5 @@
-// Tests for otfp::minimize with both backends and every algorithm they offer.
+// Tests for otfp::minimize with every backend and every algorithm they offer
+// (TAO where the build has otfp::mpi: this suite registers it).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -12,6 +13,9 @@
 
 #include "otfp/minimizer.hpp"
 #include "otfp/types.hpp"
+#ifdef OTFP_WITH_TAO
+#include "otfp/tao.hpp"
+#endif
 
 namespace {
 
@@ -120,12 +124,24 @@ struct Combo {
   Backend backend;
   Algorithm algorithm;
 };
+#ifdef OTFP_WITH_TAO
+// Registered before the lists below are built (same translation unit, in order).
+const bool kTaoRegistered = (otfp::register_tao_backend(), true);
+#endif
 const std::vector<Combo> kAllCombos = {
     {Backend::Ceres, Algorithm::Lbfgs},          {Backend::Ceres, Algorithm::Bfgs},
     {Backend::Ceres, Algorithm::NonlinearCg},    {Backend::Nlopt, Algorithm::Lbfgs},
     {Backend::Nlopt, Algorithm::TruncatedNewton}, {Backend::Nlopt, Algorithm::Var2},
-    {Backend::Nlopt, Algorithm::Mma}};
-const std::vector<Backend> kBackends = {Backend::Ceres, Backend::Nlopt};
+    {Backend::Nlopt, Algorithm::Mma},
+#ifdef OTFP_WITH_TAO
+    {Backend::Tao, Algorithm::Lbfgs},
+#endif
+};
+const std::vector<Backend> kBackends = {Backend::Ceres, Backend::Nlopt,
+#ifdef OTFP_WITH_TAO
+                                        Backend::Tao
+#endif
+};
 
 std::string label(Backend b, Algorithm a) { return otfp::to_string(b) + "/" + otfp::to_string(a); }
 
@@ -473,6 +489,14 @@ TEST(Minimizer, ValidateRejectsBadOptions) {
     o.backend = Backend::Nlopt;
     o.algorithm = a;
     expect_invalid(o, "algorithm");
+  }
+  // TAO offers L-BFGS (LMVM) only; where the build has no TAO, the backend itself is refused.
+  for (Algorithm a :
+       {Algorithm::Bfgs, Algorithm::NonlinearCg, Algorithm::TruncatedNewton, Algorithm::Var2, Algorithm::Mma}) {
+    MinimizerOptions o;
+    o.backend = Backend::Tao;
+    o.algorithm = a;
+    expect_invalid(o, otfp::backend_available(Backend::Tao) ? "algorithm" : "backend");
   }
   for (const Combo& c : kAllCombos) EXPECT_NO_THROW(make_options(c.backend, c.algorithm, 1e-6).validate());
 }

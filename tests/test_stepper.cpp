@@ -17,6 +17,9 @@
 #include "otfp/implicit_stepper.hpp"
 #include "otfp/parameters.hpp"
 #include "test_support.hpp"
+#ifdef OTFP_WITH_TAO
+#include "otfp/tao.hpp"
+#endif
 
 using namespace otfp;
 using otfp::testing::random_cloud;
@@ -188,7 +191,7 @@ TEST(ImplicitStepper, RelativeRuleConvergesTinySteps) {
 }
 
 namespace {
-void backends_agree(int dim, WidthMode widths) {
+void backends_agree(int dim, WidthMode widths, Backend other = Backend::Nlopt) {
   const std::size_t n = dim == 2 ? 120 : 200;
   const double dr = std::pow(1.0 / n, 1.0 / dim);
   const double s = dr / std::sqrt(2.0);
@@ -200,7 +203,7 @@ void backends_agree(int dim, WidthMode widths) {
   ParticleSet a = start, b = start;
   const double tol = 1e-6;  // in units of s; much tighter is below the round-off of F
   ImplicitStepper ceres(dim, tight_options(Backend::Ceres, widths, tol), Barrier(ball, 100.0));
-  ImplicitStepper nlopt(dim, tight_options(Backend::Nlopt, widths, tol), Barrier(ball, 100.0));
+  ImplicitStepper nlopt(dim, tight_options(other, widths, tol), Barrier(ball, 100.0));
   const StepSummary sa = ceres.step(a, dt);
   const StepSummary sb = nlopt.step(b, dt);
   ASSERT_TRUE(sa.accepted) << sa.message;
@@ -227,6 +230,21 @@ TEST(ImplicitStepper, CeresAndNloptReachSameMinimizer2DPositions) { backends_agr
 TEST(ImplicitStepper, CeresAndNloptReachSameMinimizer3DPositions) { backends_agree(3, WidthMode::Fixed); }
 TEST(ImplicitStepper, CeresAndNloptReachSameMinimizer2DWidths) { backends_agree(2, WidthMode::PerParticle); }
 TEST(ImplicitStepper, CeresAndNloptReachSameMinimizer3DWidths) { backends_agree(3, WidthMode::PerParticle); }
+#ifdef OTFP_WITH_TAO
+// TAO (LMVM, the library's stopping rule) against Ceres on the same steps.
+TEST(ImplicitStepper, CeresAndTaoReachSameMinimizer2DPositions) {
+  register_tao_backend();
+  backends_agree(2, WidthMode::Fixed, Backend::Tao);
+}
+TEST(ImplicitStepper, CeresAndTaoReachSameMinimizer3DPositions) {
+  register_tao_backend();
+  backends_agree(3, WidthMode::Fixed, Backend::Tao);
+}
+TEST(ImplicitStepper, CeresAndTaoReachSameMinimizer3DWidths) {
+  register_tao_backend();
+  backends_agree(3, WidthMode::PerParticle, Backend::Tao);
+}
+#endif
 
 TEST(ImplicitStepper, SingleFreeBlobWidthFollowsClosedForm) {
   for (int dim = 1; dim <= 3; ++dim) {

@@ -12,10 +12,12 @@ namespace otfp {
 
 // ---- Minimiser (minimizer.hpp)
 
-enum class Backend { Ceres, Nlopt };
+// Tao: PETSc's TAO (LMVM), from the otfp::mpi component (OTFP_WITH_MPI); a
+// program that links it calls register_tao_backend() (otfp/tao.hpp) once.
+enum class Backend { Ceres, Nlopt, Tao };
 
 enum class Algorithm {
-  Lbfgs,            // Ceres LBFGS / NLopt LD_LBFGS (default for both)
+  Lbfgs,            // Ceres LBFGS / NLopt LD_LBFGS / TAO LMVM (default for all)
   Bfgs,             // Ceres BFGS (Ceres only)
   NonlinearCg,      // Ceres NONLINEAR_CONJUGATE_GRADIENT (Ceres only)
   TruncatedNewton,  // NLopt LD_TNEWTON_PRECOND_RESTART (NLopt only)

@@ -1,7 +1,8 @@
 #pragma once
-// Unconstrained gradient-based minimisation with two run-time selectable
-// backends: Ceres Solver (GradientProblemSolver) and NLopt. Neither library's
-// types appear here; the adapters live in src/ and are linked privately.
+// Unconstrained gradient-based minimisation with run-time selectable
+// backends: Ceres Solver (GradientProblemSolver), NLopt, and PETSc's TAO
+// (from the optional otfp::mpi component). No backend library's types appear
+// here; the adapters live in src/ and are linked privately.
 #include <cstddef>
 #include <string>
 #include <vector>
@@ -52,6 +53,16 @@ struct MinimizerSummary {
   double total_seconds = 0.0;
   std::string message;          // backend's own message
 };
+
+// Whether `backend` offers `algorithm` (validate() checks it), and the names
+// it offers, for messages.
+bool algorithm_offered(Backend backend, Algorithm algorithm);
+std::string offered_algorithms(Backend backend);
+
+// Ceres and NLopt always; TAO once the otfp::mpi component has registered it
+// (register_tao_backend(), otfp/tao.hpp). minimize() with a backend that is
+// not available throws InvalidArgument naming solver.backend.
+bool backend_available(Backend backend);
 
 // Minimises the objective from z (in place). On return z holds the best point
 // found (even when not successful; callers decide whether to accept it).

@@ -33,7 +33,7 @@ E no_from_string(const std::string& s) {
 
 void bind_enums(py::module_& m) {
   // ---- enums
-  bind_enum<Backend>(m, "Backend", {{"Ceres", Backend::Ceres}, {"Nlopt", Backend::Nlopt}}, backend_from_string);
+  bind_enum<Backend>(m, "Backend", {{"Ceres", Backend::Ceres}, {"Nlopt", Backend::Nlopt}, {"Tao", Backend::Tao}}, backend_from_string);
   bind_enum<Algorithm>(m, "Algorithm",
                        {{"Lbfgs", Algorithm::Lbfgs}, {"Bfgs", Algorithm::Bfgs}, {"NonlinearCg", Algorithm::NonlinearCg},
                         {"TruncatedNewton", Algorithm::TruncatedNewton}, {"Var2", Algorithm::Var2}, {"Mma", Algorithm::Mma}},

@@ -24,7 +24,7 @@ void bind_options(py::module_& m) {
       .validated()
       .done();
   Options<MinimizerOptions>(m, "MinimizerOptions", "Backend and caps of the minimiser.")
-      .field("backend", &MinimizerOptions::backend, "ceres | nlopt")
+      .field("backend", &MinimizerOptions::backend, "ceres | nlopt | tao (tao where built with OTFP_WITH_MPI; see backend_available)")
       .field("algorithm", &MinimizerOptions::algorithm, "lbfgs, bfgs, nonlinear_cg (Ceres); tnewton, var2, mma (NLopt)")
       .field("gradient_tolerance", &MinimizerOptions::gradient_tolerance, "set per step by the stepper")
       .field("relative_gradient_tolerance", &MinimizerOptions::relative_gradient_tolerance, "0: off")
@@ -141,6 +141,8 @@ void bind_options(py::module_& m) {
       .field("wavenumber", &FillOptions::wavenumber, "cosine k")
       .validated()
       .done();
+  m.def("backend_available", &backend_available, py::arg("backend"),
+        "Whether this build offers the minimiser backend (Tao: built with OTFP_WITH_MPI).");
   m.def("default_max_particles", &default_max_particles,
         "Half the machine's memory over 2.5 KB per particle: what SimulationOptions.max_particles = 0 means.");
   m.def("fill_particles",

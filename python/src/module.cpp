@@ -31,6 +31,9 @@
 
 #include "otfp/simulation.hpp"
 #include "otfp/types.hpp"
+#ifdef OTFP_WITH_TAO
+#include "otfp/tao.hpp"
+#endif
 
 #include "bindings.hpp"
 
@@ -46,7 +49,10 @@ PYBIND11_MODULE(_otfp, m) {
   // OutputDirError (ValueError too) are registered by bind_config.
   py::register_exception<otfp::InvalidArgument>(m, "InvalidArgument", PyExc_ValueError);
   py::register_exception<otfp::StepFailure>(m, "StepFailure", PyExc_RuntimeError);
-  m.attr("__version__") = OTFP_PYTHON_VERSION;  // the project's version, as `otfp --version` reports it
+  m.attr("__version__") = OTFP_PYTHON_VERSION;
+#ifdef OTFP_WITH_TAO
+  otfp::register_tao_backend();  // Backend.Tao
+#endif  // the project's version, as `otfp --version` reports it
 
   // In this order: a class is registered before the signatures that name it.
   bind_enums(m);

@@ -18,8 +18,13 @@ def rows_without_region(csv_text):
     return [line.rsplit(",", 1)[0] for line in lines]
 
 
+TAO = pytest.mark.skipif(not otfp.backend_available(otfp.Backend.Tao),
+                         reason="built without OTFP_WITH_MPI (no TAO backend)")
+
+
 @pytest.mark.parametrize("extra", [[], ["solver.stepper=explicit", "run.dt_factor=0.25"],
-                                   ["solver.time_scheme=bdf2", "solver.backend=nlopt"]])
+                                   ["solver.time_scheme=bdf2", "solver.backend=nlopt"],
+                                   pytest.param(["solver.backend=tao"], marks=TAO)])
 def test_steps_equal_the_command_line_tool_bit_for_bit(tmp_path, source_dir, otfp_cli, extra):
     config = str(source_dir / "examples" / "sphere_dirichlet.toml")
     overrides = OVERRIDES + extra + ["run.max_steps=3"]

@@ -21,6 +21,9 @@
 #include "otfp_app/simulation.hpp"
 #include "otfp_app/sweep.hpp"
 #include "otfp_app/writers.hpp"
+#ifdef OTFP_WITH_TAO
+#include "otfp/tao.hpp"
+#endif
 
 namespace otfp::app {
 
@@ -132,8 +135,14 @@ std::unique_ptr<ConfiguredRun> load(const std::string& config, const std::vector
 }  // namespace
 
 int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream& err) {
+#ifdef OTFP_WITH_TAO
+  otfp::register_tao_backend();  // solver.backend = "tao"
+  const std::string backends = " (solver backends: ceres, nlopt, tao with " + otfp::petsc_version() + ")";
+#else
+  const std::string backends = " (solver backends: ceres, nlopt)";
+#endif
   CLI::App app{"otfp: optimal-transport finite-particle method for driven mass diffusion"};
-  app.set_version_flag("--version", "otfp " + version());
+  app.set_version_flag("--version", "otfp " + version() + backends);
   app.require_subcommand(1);
 
   std::string config, out_dir, resume_dir;

@@ -406,7 +406,7 @@ const std::vector<Field>& fields() {
         key("boundary[].t_start", &BoundarySpec::t_start).with(at_least(0)).written_if(neumann_only),
         key("boundary[].t_end", &BoundarySpec::t_end),
         choice("solver.stepper", &SolverSection::stepper, named({StepperKind::Implicit, StepperKind::Explicit})),
-        choice("solver.backend", &SolverSection::backend,named({Backend::Ceres, Backend::Nlopt})),
+        choice("solver.backend", &SolverSection::backend,named({Backend::Ceres, Backend::Nlopt, Backend::Tao})),
         choice("solver.algorithm", &SolverSection::algorithm,
             named({Algorithm::Lbfgs, Algorithm::Bfgs, Algorithm::NonlinearCg, Algorithm::TruncatedNewton,
                            Algorithm::Var2, Algorithm::Mma})),

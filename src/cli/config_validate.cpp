@@ -6,6 +6,7 @@
 #include <system_error>
 
 #include "config_table.hpp"
+#include "otfp/minimizer.hpp"
 
 namespace otfp::app::config_detail {
 
@@ -46,11 +47,6 @@ void check_rules(const Config& c) {
         if (f.scope == scope) check(f, i);
 }
 
-bool offered(Backend backend, Algorithm algorithm) {
-  if (algorithm == Algorithm::Lbfgs) return true;
-  if (backend == Backend::Ceres) return algorithm == Algorithm::Bfgs || algorithm == Algorithm::NonlinearCg;
-  return algorithm == Algorithm::TruncatedNewton || algorithm == Algorithm::Var2 || algorithm == Algorithm::Mma;
-}
 
 }  // namespace
 
@@ -162,10 +158,13 @@ void validate(const Config& c) {
   }
 
   const SolverSection& s = c.solver;
-  if (!offered(s.backend, s.algorithm))
+  if (!backend_available(s.backend))
+    throw ConfigError("solver.backend", quoted(to_string(s.backend)),
+                      "not available in this build of otfp (TAO needs OTFP_WITH_MPI=ON with PETSc 3.18 found)");
+  if (!algorithm_offered(s.backend, s.algorithm))
     throw ConfigError("solver.algorithm", quoted(to_string(s.algorithm)),
                       "not offered by solver.backend = " + quoted(to_string(s.backend)) + " (allowed: " +
-                          (s.backend == Backend::Ceres ? "lbfgs, bfgs, nonlinear_cg" : "lbfgs, tnewton, var2, mma") + ")");
+                          offered_algorithms(s.backend) + ")");
   const bool per_particle = s.width_mode == WidthMode::PerParticle;
   if (per_particle && !implicit)
     throw ConfigError("solver.width_mode", "\"per_particle\"", "needs solver.stepper = \"implicit\"");

@@ -6,7 +6,9 @@
 
 - ```cpp blocks are complete programs: each is compiled against the build
   tree's otfp library (a CMake project with find_package(otfp), otfp_DIR =
-  BUILD_DIR, warnings as errors) and run from an empty temporary directory.
+  BUILD_DIR, warnings as errors; otfp::mpi linked too where the build has
+  it) and run from an empty temporary directory. A block that includes
+  otfp/tao.hpp is skipped in a build without otfp::mpi.
 - ```python blocks are run with PYTHON (default /usr/bin/python3) from an
   empty temporary directory with PYTHONPATH = BUILD_DIR/python.
 - Either must exit with status 0 and leave nothing behind in the directory it
@@ -76,12 +78,16 @@ def main():
     shutil.rmtree(work, ignore_errors=True)
     os.makedirs(os.path.join(work, "src"))
 
+    with open(os.path.join(build, "CMakeCache.txt")) as f:
+        with_mpi = "OTFP_WITH_MPI:BOOL=ON" in f.read()
     cpp, py, skipped = [], [], []
     for path in args.files:
         name = os.path.basename(path)
         for line, lang, code in blocks(path):
             label = f"{name}:{line} ({lang or 'plain'})"
-            if lang in CPP:
+            if lang in CPP and "otfp/tao.hpp" in code and not with_mpi:
+                skipped.append(label + " (needs otfp::mpi)")
+            elif lang in CPP:
                 cpp.append((label, f"{os.path.splitext(name)[0]}_{line}", code))
             elif lang in PYTHON:
                 py.append((label, code))
@@ -101,6 +107,8 @@ def main():
                 f.write(code)
             cmake += [f"add_executable({target} src/{target}.cpp)",
                       f"target_link_libraries({target} PRIVATE otfp::otfp)",
+                      # docs/distributed.md's TAO programs: where the build has the component
+                      f"if(TARGET otfp::mpi)\n  target_link_libraries({target} PRIVATE otfp::mpi)\nendif()",
                       f"target_compile_options({target} PRIVATE -Wall -Wextra -Werror)"]
         with open(os.path.join(work, "CMakeLists.txt"), "w") as f:
             f.write("\n".join(cmake) + "\n")

@@ -1,0 +1,277 @@
+// TAO adapter (PETSc 3.18): TAOLMVM, PETSc's limited-memory BFGS with a
+// More-Thuente line search, on a sequential Vec. The library's stopping rule
+// replaces TAO's own tests: a convergence test of ours checks
+// Objective::stopping_measure at every accepted iterate, as the other
+// adapters do, so that the three backends stop at the same tolerance.
+//
+// The objective callback tracks the best finite point (as the NLopt adapter
+// does): when a run is cut short (evaluation cap, an exception in the
+// objective) the callback returns an error code, TAO unwinds, and the best
+// point is what is returned. A non-finite point is answered with a finite
+// value above the best one (see objective_and_gradient), which the line
+// search backs off from.
+//
+// PETSc is not thread-safe in Debian's build (no PETSC_HAVE_THREADSAFETY):
+// TAO solves are serialised by one process-wide mutex. The objective itself
+// may still use OpenMP inside a solve.
+#include <petscsys.h>
+#include <petsctao.h>
+
+#include <algorithm>
+#include <cmath>
+#include <csignal>
+#include <iterator>
+#include <cstdlib>
+#include <limits>
+#include <mutex>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "../minimizer_backends.hpp"
+#include "otfp/tao.hpp"
+
+namespace otfp::detail {
+
+namespace {
+
+using Status = TrackedObjective::Status;
+
+std::mutex& petsc_mutex() {
+  static std::mutex m;
+  return m;
+}
+
+void check(PetscErrorCode ierr, const char* what) {
+  if (ierr != 0) throw std::runtime_error(std::string("PETSc/TAO: ") + what + " failed (error " + std::to_string(ierr) + ")");
+}
+
+// PETSc is initialised once, on first use, unless the program did it itself
+// (then its settings stay as they are). Without PETSc's or Open MPI's signal
+// handlers: they would replace the sanitizers' and the command-line tool's own.
+void ensure_petsc() {
+  PetscBool initialized = PETSC_FALSE;
+  check(PetscInitialized(&initialized), "PetscInitialized");
+  if (initialized) return;
+  check(PetscOptionsSetValue(nullptr, "-no_signal_handler", nullptr), "PetscOptionsSetValue");
+  // Open MPI's initialisation (inside PETSc's) installs its own SIGSEGV and
+  // SIGBUS handlers: the process's dispositions are put back as they were.
+  const int signals[] = {SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGABRT, SIGINT, SIGTERM};
+  struct sigaction saved[std::size(signals)];
+  for (std::size_t i = 0; i < std::size(signals); ++i) sigaction(signals[i], nullptr, &saved[i]);
+  const PetscErrorCode ierr = PetscInitializeNoArguments();
+  for (std::size_t i = 0; i < std::size(signals); ++i) sigaction(signals[i], &saved[i], nullptr);
+  check(ierr, "PetscInitializeNoArguments");
+  // Errors come back as codes (turned into exceptions here), with no
+  // traceback printed on stderr.
+  check(PetscPushErrorHandler(PetscReturnErrorHandler, nullptr), "PetscPushErrorHandler");
+  std::atexit([] {
+    PetscBool finalized = PETSC_TRUE;
+    if (PetscFinalized(&finalized) == 0 && !finalized) PetscFinalize();
+  });
+}
+
+struct VecHandle {
+  Vec v = nullptr;
+  ~VecHandle() {
+    if (v != nullptr) VecDestroy(&v);
+  }
+};
+struct TaoHandle {
+  Tao t = nullptr;
+  ~TaoHandle() {
+    if (t != nullptr) TaoDestroy(&t);
+  }
+};
+
+enum class Stop { None, Capped, Error };
+
+struct TaoRun {
+  TrackedObjective* objective = nullptr;
+  const MinimizerOptions* options = nullptr;
+  Stop stop = Stop::None;
+  // Best (lowest finite value) point evaluated with its gradient; starts as the start point.
+  std::vector<double> best_x;
+  double best_value = 0.0;
+  double best_measure = 0.0;
+  bool converged = false;
+  bool function_tolerance = false;
+  double last_value = 0.0;  // f at the previous accepted iterate (function_tolerance)
+};
+
+// A nonzero return unwinds TaoSolve; run.stop says why.
+constexpr PetscErrorCode kStopCode = PETSC_ERR_USER;
+
+PetscErrorCode objective_and_gradient(Tao /*tao*/, Vec x, PetscReal* f, Vec g, void* data) {
+  auto& run = *static_cast<TaoRun*>(data);
+  const PetscScalar* xx = nullptr;
+  PetscScalar* gg = nullptr;
+  PetscErrorCode ierr = VecGetArrayRead(x, &xx);
+  if (ierr != 0) return ierr;
+  ierr = VecGetArray(g, &gg);
+  if (ierr != 0) {
+    VecRestoreArrayRead(x, &xx);
+    return ierr;
+  }
+  const std::size_t n = run.objective->size();
+  double value = 0.0;
+  const Status st = run.objective->evaluate(xx, &value, gg);
+  if (st == Status::Ok) {
+    *f = value;
+    if (value < run.best_value) {
+      run.best_value = value;
+      run.best_x.assign(xx, xx + n);
+      run.best_measure = run.objective->measure(xx, gg);
+      if (run.objective->failed()) run.stop = Stop::Error;
+    }
+  } else {
+    // TAO's More-Thuente line search cannot back off from +inf (its cubic
+    // step becomes NaN and the search fails at the first point outside the
+    // objective's domain). It is given a finite value above the best point's
+    // instead, with a zero gradient: never accepted (no sufficient decrease),
+    // it brackets the step, and the search shortens it as Ceres' does.
+    *f = run.best_value + std::max(1.0, std::abs(run.best_value));
+    for (std::size_t i = 0; i < n; ++i) gg[i] = 0.0;
+    if (st == Status::Capped) run.stop = Stop::Capped;
+    if (st == Status::Error) run.stop = Stop::Error;
+  }
+  VecRestoreArray(g, &gg);
+  VecRestoreArrayRead(x, &xx);
+  return run.stop == Stop::None ? PetscErrorCode(0) : kStopCode;
+}
+
+// Replaces TAO's default test: ours at each accepted iterate, plus the caps.
+PetscErrorCode convergence_test(Tao tao, void* data) {
+  auto& run = *static_cast<TaoRun*>(data);
+  TaoConvergedReason reason = TAO_CONTINUE_ITERATING;
+  PetscErrorCode ierr = TaoGetConvergedReason(tao, &reason);
+  if (ierr != 0) return ierr;
+  if (reason != TAO_CONTINUE_ITERATING) return 0;  // the line search failed: TAO's verdict stands
+  PetscInt iterations = 0;
+  PetscReal f = 0.0, gnorm = 0.0, cnorm = 0.0, xdiff = 0.0;
+  ierr = TaoGetSolutionStatus(tao, &iterations, &f, &gnorm, &cnorm, &xdiff, &reason);
+  if (ierr != 0) return ierr;
+  Vec x = nullptr, g = nullptr;
+  ierr = TaoGetSolution(tao, &x);
+  if (ierr != 0) return ierr;
+  ierr = TaoGetGradient(tao, &g, nullptr, nullptr);
+  if (ierr != 0) return ierr;
+  const PetscScalar* xx = nullptr;
+  const PetscScalar* gg = nullptr;
+  VecGetArrayRead(x, &xx);
+  VecGetArrayRead(g, &gg);
+  const double measure = run.objective->measure(xx, gg);
+  VecRestoreArrayRead(g, &gg);
+  VecRestoreArrayRead(x, &xx);
+  if (run.objective->failed()) {
+    run.stop = Stop::Error;
+    return kStopCode;
+  }
+  const double ftol = run.options->function_tolerance;
+  if (measure <= run.options->gradient_tolerance) {
+    run.converged = true;
+    return TaoSetConvergedReason(tao, TAO_CONVERGED_USER);
+  }
+  if (iterations > 0 && ftol > 0.0 && std::abs(run.last_value - f) <= ftol * std::abs(run.last_value)) {
+    run.function_tolerance = true;
+    return TaoSetConvergedReason(tao, TAO_CONVERGED_USER);
+  }
+  run.last_value = f;
+  if (iterations >= run.options->max_iterations) return TaoSetConvergedReason(tao, TAO_DIVERGED_MAXITS);
+  return 0;
+}
+
+BackendResult run_tao(TrackedObjective& objective, std::vector<double>& z, const StartPoint& start,
+                      const MinimizerOptions& options) {
+  const std::lock_guard<std::mutex> lock(petsc_mutex());
+  ensure_petsc();
+  if (z.size() > static_cast<std::size_t>(std::numeric_limits<PetscInt>::max()))
+    throw std::runtime_error("PETSc/TAO: " + std::to_string(z.size()) + " unknowns exceed PetscInt");
+  const auto n = static_cast<PetscInt>(z.size());
+
+  TaoRun run;
+  run.objective = &objective;
+  run.options = &options;
+  run.best_x = z;
+  run.best_value = start.value;
+  run.best_measure = start.measure;
+  run.last_value = start.value;
+
+  VecHandle x;
+  check(VecCreateSeq(PETSC_COMM_SELF, n, &x.v), "VecCreateSeq");
+  {
+    PetscScalar* xx = nullptr;
+    check(VecGetArray(x.v, &xx), "VecGetArray");
+    std::copy(z.begin(), z.end(), xx);
+    check(VecRestoreArray(x.v, &xx), "VecRestoreArray");
+  }
+  // The L-BFGS memory: TAOLMVM's matrix (options prefix "tao_lmvm_") takes it
+  // from the options database only, read by TaoSetFromOptions. Options from
+  // PETSC_OPTIONS are read there too (-tao_ls_type, -tao_view, ...); the
+  // settings below override the ones the library owns.
+  const std::string memory = std::to_string(options.lbfgs_memory);
+  check(PetscOptionsSetValue(nullptr, "-tao_lmvm_mat_lmvm_hist_size", memory.c_str()), "PetscOptionsSetValue");
+  TaoHandle tao;
+  check(TaoCreate(PETSC_COMM_SELF, &tao.t), "TaoCreate");
+  check(TaoSetType(tao.t, TAOLMVM), "TaoSetType");
+  check(TaoSetFromOptions(tao.t), "TaoSetFromOptions");
+  check(TaoSetSolution(tao.t, x.v), "TaoSetSolution");
+  check(TaoSetObjectiveAndGradient(tao.t, nullptr, objective_and_gradient, &run), "TaoSetObjectiveAndGradient");
+  check(TaoSetConvergenceTest(tao.t, convergence_test, &run), "TaoSetConvergenceTest");
+  check(TaoSetMaximumIterations(tao.t, options.max_iterations), "TaoSetMaximumIterations");
+  // A backstop: the tracker enforces the cap on objective calls.
+  check(TaoSetMaximumFunctionEvaluations(tao.t, options.max_evaluations), "TaoSetMaximumFunctionEvaluations");
+
+  BackendResult r;
+  const PetscErrorCode solved = TaoSolve(tao.t);
+  TaoConvergedReason reason = TAO_CONTINUE_ITERATING;
+  TaoGetConvergedReason(tao.t, &reason);
+  PetscInt iterations = 0;
+  TaoGetIterationNumber(tao.t, &iterations);
+  // TAO counts the iteration whose line search failed; the other backends do not.
+  if (reason == TAO_DIVERGED_LS_FAILURE && iterations > 0) --iterations;
+  r.iterations = static_cast<int>(iterations);
+  r.message = "tao reason " + std::to_string(static_cast<int>(reason));
+
+  z = run.best_x;
+  r.final_value = run.best_value;
+  r.final_measure = run.best_measure;
+  if (run.stop == Stop::Error) {
+    r.reason = TerminationReason::Failure;  // minimize() rethrows the objective's exception
+  } else if (run.stop == Stop::Capped || reason == TAO_DIVERGED_MAXFCN) {
+    r.reason = TerminationReason::MaxEvaluations;
+  } else if (solved != 0) {
+    r.reason = TerminationReason::Failure;
+    r.message = "TaoSolve failed (PETSc error " + std::to_string(solved) + ")";
+  } else if (run.converged) {
+    r.reason = TerminationReason::Converged;
+  } else if (run.function_tolerance) {
+    r.reason = TerminationReason::FunctionTolerance;
+  } else if (reason == TAO_DIVERGED_MAXITS) {
+    r.reason = TerminationReason::MaxIterations;
+  } else if (reason == TAO_DIVERGED_LS_FAILURE) {
+    r.reason = objective.nonfinite_evaluations() > 0 && run.best_value == start.value
+                   ? TerminationReason::NonFinite
+                   : TerminationReason::LineSearchFailure;
+    if (objective.nonfinite_evaluations() > 0)
+      r.message += " (objective not finite at " + std::to_string(objective.nonfinite_evaluations()) + " trial points)";
+  } else {
+    r.reason = TerminationReason::Failure;
+  }
+  return r;
+}
+
+}  // namespace
+
+}  // namespace otfp::detail
+
+namespace otfp {
+
+void register_tao_backend() { detail::set_backend_runner(Backend::Tao, detail::run_tao); }
+
+std::string petsc_version() {
+  return "PETSc " + std::to_string(PETSC_VERSION_MAJOR) + "." + std::to_string(PETSC_VERSION_MINOR) + "." +
+         std::to_string(PETSC_VERSION_SUBMINOR);
+}
+
+}  // namespace otfp

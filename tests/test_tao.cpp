@@ -1,0 +1,177 @@
+// The TAO backend's own behaviour (otfp::mpi): registration, PETSc's process
+// state, the options it must honour, and concurrent use. Its minimisation
+// results are tested with the other backends' in test_minimizer.cpp and
+// test_stepper.cpp.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <csignal>
+#include <cstring>
+#include <functional>
+#include <thread>
+#include <vector>
+
+#include "otfp/minimizer.hpp"
+#include "otfp/tao.hpp"
+#include "otfp/types.hpp"
+
+namespace {
+
+using otfp::Algorithm;
+using otfp::Backend;
+using otfp::MinimizerOptions;
+using otfp::MinimizerSummary;
+using otfp::TerminationReason;
+
+// The extended Rosenbrock function sum_i 100 (z_{2i+1} - z_{2i}^2)^2 + (1 - z_{2i})^2.
+class Rosenbrock final : public otfp::Objective {
+ public:
+  explicit Rosenbrock(std::size_t n) : n_(n) {}
+  std::size_t num_variables() const override { return n_; }
+  bool evaluate(const double* z, double* value, double* gradient) override {
+    double f = 0.0;
+    if (gradient != nullptr) std::fill(gradient, gradient + n_, 0.0);
+    for (std::size_t i = 0; i + 1 < n_; i += 2) {
+      const double a = z[i + 1] - z[i] * z[i];
+      const double b = 1.0 - z[i];
+      f += 100.0 * a * a + b * b;
+      if (gradient != nullptr) {
+        gradient[i] += -400.0 * a * z[i] - 2.0 * b;
+        gradient[i + 1] += 200.0 * a;
+      }
+    }
+    *value = f;
+    return true;
+  }
+
+ private:
+  std::size_t n_;
+};
+
+// f = sum_i a_i (z_i - 1)^2 / 2 with a_i log-spaced over [1, 1e3]: L-BFGS's
+// iteration count on it depends on its memory.
+class IllConditionedQuadratic final : public otfp::Objective {
+ public:
+  explicit IllConditionedQuadratic(std::size_t n) : a_(n) {
+    for (std::size_t i = 0; i < n; ++i) a_[i] = std::pow(1e3, static_cast<double>(i) / static_cast<double>(n - 1));
+  }
+  std::size_t num_variables() const override { return a_.size(); }
+  bool evaluate(const double* z, double* value, double* gradient) override {
+    double f = 0.0;
+    for (std::size_t i = 0; i < a_.size(); ++i) {
+      f += 0.5 * a_[i] * (z[i] - 1.0) * (z[i] - 1.0);
+      if (gradient != nullptr) gradient[i] = a_[i] * (z[i] - 1.0);
+    }
+    *value = f;
+    return true;
+  }
+
+ private:
+  std::vector<double> a_;
+};
+
+std::vector<double> rosenbrock_start(std::size_t n) {
+  std::vector<double> z(n);
+  for (std::size_t i = 0; i < n; ++i) z[i] = i % 2 == 0 ? -1.2 : 1.0;
+  return z;
+}
+
+MinimizerOptions tao_options(double tolerance) {
+  MinimizerOptions o;
+  o.backend = Backend::Tao;
+  o.algorithm = Algorithm::Lbfgs;
+  o.gradient_tolerance = tolerance;
+  return o;
+}
+
+MinimizerSummary solve_rosenbrock(std::size_t n, const MinimizerOptions& o, std::vector<double>& z) {
+  Rosenbrock f(n);
+  z = rosenbrock_start(n);
+  return otfp::minimize(f, z, o);
+}
+
+}  // namespace
+
+// First in the file: in a process of its own (ctest runs each test alone) the
+// backend is absent until the component registers it.
+TEST(TaoBackend, AvailableOnceRegistered) {
+  if (!otfp::backend_available(Backend::Tao)) {
+    try {
+      tao_options(1e-6).validate();
+      ADD_FAILURE() << "an unregistered TAO backend passed validate()";
+    } catch (const otfp::InvalidArgument& e) {
+      EXPECT_NE(std::string(e.what()).find("solver.backend"), std::string::npos) << e.what();
+    }
+  }
+  otfp::register_tao_backend();
+  otfp::register_tao_backend();  // idempotent
+  EXPECT_TRUE(otfp::backend_available(Backend::Tao));
+  EXPECT_NO_THROW(tao_options(1e-6).validate());
+  EXPECT_EQ(otfp::petsc_version().rfind("PETSc 3.", 0), 0u) << otfp::petsc_version();
+}
+
+// PETSc's signal handlers would replace the sanitizers' and the command-line
+// tool's own: initialising PETSc for a solve must leave SIGSEGV, SIGFPE and
+// SIGINT as they were.
+TEST(TaoBackend, LeavesTheProcessSignalHandlersAlone) {
+  otfp::register_tao_backend();
+  auto handler_of = [](int sig) {
+    struct sigaction a {};
+    sigaction(sig, nullptr, &a);
+    return reinterpret_cast<void*>(a.sa_handler);
+  };
+  const int signals[] = {SIGSEGV, SIGFPE, SIGINT, SIGTERM, SIGBUS};
+  std::vector<void*> before;
+  for (int s : signals) before.push_back(handler_of(s));
+  std::vector<double> z;
+  const MinimizerSummary s = solve_rosenbrock(2, tao_options(1e-8), z);
+  ASSERT_EQ(s.reason, TerminationReason::Converged) << s.message;
+  for (std::size_t i = 0; i < before.size(); ++i) EXPECT_EQ(handler_of(signals[i]), before[i]) << "signal " << signals[i];
+}
+
+// lbfgs_memory reaches TAO's LMVM matrix (it is set through PETSc's options
+// database): on an ill-conditioned quadratic one pair of history needs more
+// iterations than 30. Were the option lost, every run would use TAO's
+// default of 5 and take the same path.
+TEST(TaoBackend, LbfgsMemoryIsTheLmvmHistory) {
+  otfp::register_tao_backend();
+  MinimizerOptions o = tao_options(1e-5);
+  auto solve = [&](int memory) {
+    o.lbfgs_memory = memory;
+    IllConditionedQuadratic f(100);
+    std::vector<double> z(100, 0.0);
+    return otfp::minimize(f, z, o);
+  };
+  const MinimizerSummary short_memory = solve(1);
+  const MinimizerSummary long_memory = solve(30);
+  const MinimizerSummary tao_default = solve(5);
+  ASSERT_EQ(short_memory.reason, TerminationReason::Converged) << short_memory.message;
+  ASSERT_EQ(long_memory.reason, TerminationReason::Converged) << long_memory.message;
+  EXPECT_GT(short_memory.iterations, long_memory.iterations)
+      << short_memory.iterations << " " << tao_default.iterations << " " << long_memory.iterations;
+  EXPECT_NE(short_memory.iterations, tao_default.iterations);
+  EXPECT_NE(long_memory.iterations, tao_default.iterations);
+}
+
+// PETSc is not thread-safe in Debian's build: solves from several threads
+// are serialised, and each gives the serial result bit for bit.
+TEST(TaoBackend, ConcurrentSolvesMatchTheSerialSolve) {
+  otfp::register_tao_backend();
+  const std::size_t n = 50;
+  std::vector<double> serial;
+  const MinimizerSummary s = solve_rosenbrock(n, tao_options(1e-9), serial);
+  ASSERT_EQ(s.reason, TerminationReason::Converged) << s.message;
+  constexpr int kThreads = 4;
+  std::vector<std::vector<double>> results(kThreads);
+  std::vector<MinimizerSummary> summaries(kThreads);
+  std::vector<std::thread> threads;
+  for (int t = 0; t < kThreads; ++t)
+    threads.emplace_back([&, t] { summaries[t] = solve_rosenbrock(n, tao_options(1e-9), results[t]); });
+  for (auto& t : threads) t.join();
+  for (int t = 0; t < kThreads; ++t) {
+    EXPECT_EQ(summaries[t].reason, TerminationReason::Converged) << summaries[t].message;
+    EXPECT_EQ(summaries[t].evaluations, s.evaluations);
+    ASSERT_EQ(results[t].size(), serial.size());
+    EXPECT_EQ(std::memcmp(results[t].data(), serial.data(), n * sizeof(double)), 0) << "thread " << t;
+  }
+}
