@@ -19,9 +19,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <csignal>
-#include <iterator>
-#include <cstdlib>
 #include <limits>
 #include <mutex>
 #include <stdexcept>
@@ -30,6 +27,7 @@
 
 #include "../minimizer_backends.hpp"
 #include "otfp/tao.hpp"
+#include "petsc_session.hpp"
 
 namespace otfp::detail {
 
@@ -37,39 +35,7 @@ namespace {
 
 using Status = TrackedObjective::Status;
 
-std::mutex& petsc_mutex() {
-  static std::mutex m;
-  return m;
-}
-
-void check(PetscErrorCode ierr, const char* what) {
-  if (ierr != 0) throw std::runtime_error(std::string("PETSc/TAO: ") + what + " failed (error " + std::to_string(ierr) + ")");
-}
-
-// PETSc is initialised once, on first use, unless the program did it itself
-// (then its settings stay as they are). Without PETSc's or Open MPI's signal
-// handlers: they would replace the sanitizers' and the command-line tool's own.
-void ensure_petsc() {
-  PetscBool initialized = PETSC_FALSE;
-  check(PetscInitialized(&initialized), "PetscInitialized");
-  if (initialized) return;
-  check(PetscOptionsSetValue(nullptr, "-no_signal_handler", nullptr), "PetscOptionsSetValue");
-  // Open MPI's initialisation (inside PETSc's) installs its own SIGSEGV and
-  // SIGBUS handlers: the process's dispositions are put back as they were.
-  const int signals[] = {SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGABRT, SIGINT, SIGTERM};
-  struct sigaction saved[std::size(signals)];
-  for (std::size_t i = 0; i < std::size(signals); ++i) sigaction(signals[i], nullptr, &saved[i]);
-  const PetscErrorCode ierr = PetscInitializeNoArguments();
-  for (std::size_t i = 0; i < std::size(signals); ++i) sigaction(signals[i], &saved[i], nullptr);
-  check(ierr, "PetscInitializeNoArguments");
-  // Errors come back as codes (turned into exceptions here), with no
-  // traceback printed on stderr.
-  check(PetscPushErrorHandler(PetscReturnErrorHandler, nullptr), "PetscPushErrorHandler");
-  std::atexit([] {
-    PetscBool finalized = PETSC_TRUE;
-    if (PetscFinalized(&finalized) == 0 && !finalized) PetscFinalize();
-  });
-}
+void check(PetscErrorCode ierr, const char* what) { petsc_check(ierr, what); }
 
 struct VecHandle {
   Vec v = nullptr;
@@ -269,9 +235,5 @@ namespace otfp {
 
 void register_tao_backend() { detail::set_backend_runner(Backend::Tao, detail::run_tao); }
 
-std::string petsc_version() {
-  return "PETSc " + std::to_string(PETSC_VERSION_MAJOR) + "." + std::to_string(PETSC_VERSION_MINOR) + "." +
-         std::to_string(PETSC_VERSION_SUBMINOR);
-}
 
 }  // namespace otfp

@@ -1,0 +1,356 @@
+// The functional (28) over the ranks of the MPI world (otfp/distributed_functional.hpp).
+//
+// Each rank evaluates the terms of the particles it owns with the serial
+// kernels, on its own particles followed by its ghosts:
+//   T, B: per particle, owned only;
+//   E:    EntropyTerm with rows = owned (docs/method_notes.md#exact-gradient):
+//         rho_p of an owned p sums its owned and ghost neighbours, and the
+//         gradient holds, for every blob q (owned or ghost), the derivative
+//         of the owned terms m_p log rho_p with respect to x_q.
+// The derivative of a rank's terms with respect to one of its ghosts belongs
+// to the ghost's owner: it is sent back and summed there (PetscSFReduce,
+// MPI_SUM). Together the ranks so hold every term of (28) once and every
+// derivative of it, with no second exchange of per-particle factors.
+//
+// Ghosts: every particle within the list radius R = r_c(s_max) + skin of the
+// bounding box of another rank's particles goes to that rank (the boxes are
+// all-gathered; periodic axes by minimum image). A pair enters the serial
+// list when |x_p - x_q| <= max(R_p, R_q) <= R, so each owned particle finds
+// all its list neighbours among its rank's blobs, with the same pair set as
+// the serial list built at the same positions. The ghosts and the list are
+// rebuilt together by the serial rule, taken over all ranks: when 2 x the
+// largest displacement since the build plus the growth of a cut-off exceeds
+// the skin.
+#include "otfp/distributed_functional.hpp"
+
+#include <petscsf.h>
+#include <petscsys.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <numeric>
+#include <stdexcept>
+#include <string>
+
+#include "otfp/types.hpp"
+#include "petsc_session.hpp"
+
+namespace otfp {
+
+std::vector<int> partition_slabs(const std::vector<Vec3>& x, int axis, int ranks) {
+  require(axis >= 0 && axis < 3, "axis", axis, "must be 0, 1 or 2");
+  require(ranks >= 1, "ranks", ranks, "must be >= 1");
+  std::vector<std::size_t> order(x.size());
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  std::stable_sort(order.begin(), order.end(),
+                   [&](std::size_t a, std::size_t b) { return x[a][axis] < x[b][axis]; });
+  std::vector<int> owner(x.size(), 0);
+  const std::size_t n = x.size();
+  for (std::size_t k = 0; k < n; ++k)
+    owner[order[k]] = static_cast<int>((k * static_cast<std::size_t>(ranks)) / std::max<std::size_t>(n, 1));
+  return owner;
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+// Distance from y to the box [lo, hi] (per axis: 0 inside; periodic axes by
+// the nearest image of y).
+double distance_to_box(const Vec3& y, const Vec3& lo, const Vec3& hi, const Periodicity& per, int dim) {
+  double d2 = 0.0;
+  for (int k = 0; k < dim; ++k) {
+    auto gap = [&](double v) { return std::max({0.0, lo[k] - v, v - hi[k]}); };
+    double g = gap(y[k]);
+    if (per.period[k] > 0.0) g = std::min({g, gap(y[k] - per.period[k]), gap(y[k] + per.period[k])});
+    d2 += g * g;
+  }
+  return std::sqrt(d2);
+}
+
+}  // namespace
+
+struct DistributedFunctional::Impl {
+  int dim;
+  FunctionalOptions options;
+  TransportTerm transport;
+  EntropyTerm entropy;
+  BarrierTerm barrier;
+  Periodicity per;
+  NeighborList list;
+
+  MPI_Comm comm = MPI_COMM_NULL;
+  int rank = 0, size = 1;
+  MPI_Datatype vec3_type = MPI_DATATYPE_NULL;
+  PetscSF sf = nullptr;
+
+  std::vector<Vec3> x_ref;
+  std::vector<double> s_ref, m;
+  std::size_t n_owned = 0;
+  bool stale = true;  // set_reference() or no build yet
+
+  // Local blobs: owned, then ghosts (filled by the star forest).
+  std::vector<Vec3> x_local;
+  std::vector<double> s_local, m_local, s_list_local;
+  std::vector<Vec3> x_build;     // owned positions at the last build
+  std::vector<double> s_build;   // owned list widths at the last build
+  double skin = 0.0;
+  Gradient scratch;
+  ExchangeStats stats;
+
+  Impl(int d, FunctionalOptions o, Barrier b, Periodicity p)
+      : dim(d),
+        options(o),
+        transport(o.dt, width_metric_coefficient(o.width_metric, d)),
+        entropy(d, o.kappa, o.rho_ref),
+        barrier(std::move(b)),
+        per(p),
+        list(o.neighbor) {}
+
+  ~Impl() {
+    const std::lock_guard<std::mutex> lock(detail::petsc_mutex());
+    if (sf != nullptr) PetscSFDestroy(&sf);
+    if (vec3_type != MPI_DATATYPE_NULL) MPI_Type_free(&vec3_type);
+  }
+
+  double list_width(double s) const {
+    return options.optimise_widths && options.width_skin > 0.0 ? (1.0 + options.width_skin) * s : s;
+  }
+
+  double allreduce(double v, MPI_Op op) const {
+    double out = v;
+    MPI_Allreduce(&v, &out, 1, MPI_DOUBLE, op, comm);
+    return out;
+  }
+
+  bool needs_rebuild(const std::vector<Vec3>& x, const std::vector<double>& s) const {
+    int local = stale || x.size() != x_build.size() ? 1 : 0;
+    double measure = 0.0;
+    if (!local) {
+      double disp2 = 0.0, growth = 0.0;
+      for (std::size_t p = 0; p < x.size(); ++p) {
+        disp2 = std::max(disp2, per.displacement(x[p], x_build[p]).squaredNorm());
+        growth = std::max(growth, s[p] - s_build[p]);
+      }
+      measure = 2.0 * std::sqrt(disp2) + cutoff_radius(growth, options.neighbor.kernel_tolerance);
+    }
+    int any = 0;
+    MPI_Allreduce(&local, &any, 1, MPI_INT, MPI_MAX, comm);
+    return any != 0 || allreduce(measure, MPI_MAX) > skin;
+  }
+
+  // New ghost sets, star forest and neighbour list for the owned (x, s).
+  void rebuild(const std::vector<Vec3>& x, const std::vector<double>& s) {
+    // The skin and the list radius are global, as the serial list's would be.
+    double s_min = std::numeric_limits<double>::infinity(), s_max = 0.0;
+    for (double v : s) {
+      s_min = std::min(s_min, list_width(v));
+      s_max = std::max(s_max, list_width(v));
+    }
+    s_min = allreduce(s_min, MPI_MIN);
+    s_max = allreduce(s_max, MPI_MAX);
+    if (!std::isfinite(s_min)) s_min = s_max = 1.0;  // no particle anywhere
+    const NeighborOptions& no = options.neighbor;
+    skin = no.skin >= 0.0 ? no.skin : no.skin_factor * s_min;
+    const double radius = cutoff_radius(s_max, no.kernel_tolerance) + skin;
+
+    // Every rank's bounding box, [lo, hi], empty (lo > hi) for no particle.
+    std::vector<double> box(6), boxes(6 * static_cast<std::size_t>(size));
+    for (int k = 0; k < 3; ++k) {
+      box[k] = std::numeric_limits<double>::infinity();
+      box[3 + k] = -std::numeric_limits<double>::infinity();
+    }
+    for (const Vec3& y : x)
+      for (int k = 0; k < 3; ++k) {
+        box[k] = std::min(box[k], y[k]);
+        box[3 + k] = std::max(box[3 + k], y[k]);
+      }
+    MPI_Allgather(box.data(), 6, MPI_DOUBLE, boxes.data(), 6, MPI_DOUBLE, comm);
+
+    // What this rank sends: its particles within reach of each other box.
+    std::vector<std::vector<PetscInt>> send(static_cast<std::size_t>(size));
+    for (int r = 0; r < size; ++r) {
+      if (r == rank) continue;
+      const double* b = &boxes[6 * static_cast<std::size_t>(r)];
+      if (b[0] > b[3]) continue;  // rank r owns nothing
+      const Vec3 lo(b[0], b[1], b[2]), hi(b[3], b[4], b[5]);
+      for (std::size_t p = 0; p < x.size(); ++p)
+        if (distance_to_box(x[p], lo, hi, per, dim) <= radius) send[static_cast<std::size_t>(r)].push_back(static_cast<PetscInt>(p));
+    }
+    // Each receiver learns which (rank, index) fills each of its ghost slots.
+    std::vector<int> send_counts(static_cast<std::size_t>(size)), recv_counts(static_cast<std::size_t>(size));
+    for (int r = 0; r < size; ++r) send_counts[static_cast<std::size_t>(r)] = static_cast<int>(send[static_cast<std::size_t>(r)].size());
+    MPI_Alltoall(send_counts.data(), 1, MPI_INT, recv_counts.data(), 1, MPI_INT, comm);
+    std::vector<int> send_displ(static_cast<std::size_t>(size), 0), recv_displ(static_cast<std::size_t>(size), 0);
+    for (int r = 1; r < size; ++r) {
+      send_displ[static_cast<std::size_t>(r)] = send_displ[static_cast<std::size_t>(r - 1)] + send_counts[static_cast<std::size_t>(r - 1)];
+      recv_displ[static_cast<std::size_t>(r)] = recv_displ[static_cast<std::size_t>(r - 1)] + recv_counts[static_cast<std::size_t>(r - 1)];
+    }
+    const int n_send = send_displ.back() + send_counts.back();
+    const int n_ghost = recv_displ.back() + recv_counts.back();
+    std::vector<PetscInt> send_flat;
+    send_flat.reserve(static_cast<std::size_t>(n_send));
+    for (const auto& v : send) send_flat.insert(send_flat.end(), v.begin(), v.end());
+    std::vector<PetscInt> roots(static_cast<std::size_t>(n_ghost));
+    MPI_Alltoallv(send_flat.data(), send_counts.data(), send_displ.data(), MPIU_INT, roots.data(),
+                  recv_counts.data(), recv_displ.data(), MPIU_INT, comm);
+    std::vector<PetscSFNode> remote(static_cast<std::size_t>(n_ghost));
+    for (int r = 0; r < size; ++r)
+      for (int k = 0; k < recv_counts[static_cast<std::size_t>(r)]; ++k) {
+        const auto slot = static_cast<std::size_t>(recv_displ[static_cast<std::size_t>(r)] + k);
+        remote[slot].rank = r;
+        remote[slot].index = roots[slot];
+      }
+    if (sf != nullptr) PetscSFDestroy(&sf);
+    detail::petsc_check(PetscSFCreate(comm, &sf), "PetscSFCreate");
+    detail::petsc_check(PetscSFSetGraph(sf, static_cast<PetscInt>(x.size()), n_ghost, nullptr, PETSC_COPY_VALUES,
+                                        remote.data(), PETSC_COPY_VALUES),
+                        "PetscSFSetGraph");
+    detail::petsc_check(PetscSFSetUp(sf), "PetscSFSetUp");
+
+    // Ghost data: positions, widths and masses.
+    n_owned = x.size();
+    const std::size_t n_local = n_owned + static_cast<std::size_t>(n_ghost);
+    x_local.resize(n_local);
+    s_local.resize(n_local);
+    m_local.resize(n_local);
+    std::copy(m.begin(), m.end(), m_local.begin());
+    bcast(x, s);
+    detail::petsc_check(PetscSFBcastBegin(sf, MPI_DOUBLE, m.data(), m_local.data() + n_owned, MPI_REPLACE), "bcast");
+    detail::petsc_check(PetscSFBcastEnd(sf, MPI_DOUBLE, m.data(), m_local.data() + n_owned, MPI_REPLACE), "bcast");
+    stats.bytes_sent += static_cast<double>(n_send) * sizeof(double);
+
+    NeighborOptions local_options = no;
+    local_options.skin = skin;
+    list = NeighborList(local_options);
+    s_list_local.resize(n_local);
+    for (std::size_t p = 0; p < n_local; ++p) s_list_local[p] = list_width(s_local[p]);
+    list.build(x_local, s_list_local, per);
+    x_build = x;
+    s_build.resize(n_owned);
+    for (std::size_t p = 0; p < n_owned; ++p) s_build[p] = list_width(s[p]);
+    stale = false;
+    ++stats.rebuilds;
+    stats.ghosts = static_cast<std::size_t>(n_ghost);
+  }
+
+  // Owned (x, s) into the local arrays, the ghosts' from their owners.
+  void bcast(const std::vector<Vec3>& x, const std::vector<double>& s) {
+    std::copy(x.begin(), x.end(), x_local.begin());
+    std::copy(s.begin(), s.end(), s_local.begin());
+    Vec3* xg = x_local.data() + n_owned;
+    detail::petsc_check(PetscSFBcastBegin(sf, vec3_type, x.data(), xg, MPI_REPLACE), "PetscSFBcastBegin");
+    detail::petsc_check(PetscSFBcastEnd(sf, vec3_type, x.data(), xg, MPI_REPLACE), "PetscSFBcastEnd");
+    detail::petsc_check(PetscSFBcastBegin(sf, MPI_DOUBLE, s.data(), s_local.data() + n_owned, MPI_REPLACE),
+                        "PetscSFBcastBegin");
+    detail::petsc_check(PetscSFBcastEnd(sf, MPI_DOUBLE, s.data(), s_local.data() + n_owned, MPI_REPLACE),
+                        "PetscSFBcastEnd");
+    stats.bytes_sent += static_cast<double>(sent_per_blob()) * (sizeof(Vec3) + sizeof(double));
+  }
+
+  // How many blobs this rank sends per exchange (its roots' leaves elsewhere).
+  std::size_t sent_per_blob() const {
+    const PetscInt* degree = nullptr;
+    PetscSFComputeDegreeBegin(sf, &degree);
+    PetscSFComputeDegreeEnd(sf, &degree);
+    std::size_t sent = 0;
+    for (std::size_t p = 0; p < n_owned; ++p) sent += static_cast<std::size_t>(degree[p]);
+    return sent;
+  }
+};
+
+DistributedFunctional::DistributedFunctional(int dim, FunctionalOptions options, Barrier barrier,
+                                             Periodicity periodicity) {
+  options.validate();
+  require(dim >= 1 && dim <= 3, "dim", dim, "must be 1, 2 or 3");
+  const std::lock_guard<std::mutex> lock(detail::petsc_mutex());
+  detail::ensure_petsc();
+  impl_ = std::make_unique<Impl>(dim, options, std::move(barrier), periodicity);
+  impl_->comm = PETSC_COMM_WORLD;
+  MPI_Comm_rank(impl_->comm, &impl_->rank);
+  MPI_Comm_size(impl_->comm, &impl_->size);
+  MPI_Type_contiguous(3, MPI_DOUBLE, &impl_->vec3_type);
+  MPI_Type_commit(&impl_->vec3_type);
+}
+
+DistributedFunctional::~DistributedFunctional() = default;
+
+void DistributedFunctional::set_reference(const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref,
+                                          const std::vector<double>& m) {
+  require(s_ref.size() == x_ref.size() && m.size() == x_ref.size(), "reference sizes",
+          static_cast<double>(s_ref.size()), "x_ref, s_ref and m must have one entry per owned particle");
+  impl_->x_ref = x_ref;
+  impl_->s_ref = s_ref;
+  impl_->m = m;
+  impl_->stale = true;
+}
+
+FunctionalParts DistributedFunctional::evaluate(const std::vector<Vec3>& x, const std::vector<double>& s,
+                                                Gradient* grad) {
+  Impl& d = *impl_;
+  require(x.size() == d.m.size() && s.size() == d.m.size(), "configuration size", static_cast<double>(x.size()),
+          "must match the owned particles set by set_reference()");
+  const std::lock_guard<std::mutex> lock(detail::petsc_mutex());
+  const auto t0 = Clock::now();
+  if (d.needs_rebuild(x, s))
+    d.rebuild(x, s);
+  else
+    d.bcast(x, s);
+  double exchange = seconds_since(t0);
+
+  const std::size_t n = d.n_owned, n_local = d.x_local.size();
+  const bool widths = grad && d.options.optimise_widths;
+  FunctionalParts parts;
+  if (grad) {
+    grad->resize(n, widths);
+    d.scratch.resize(n_local, widths);
+  }
+  parts.transport = d.transport.evaluate(x, s, d.m, d.x_ref, d.s_ref, grad);
+  parts.entropy = d.entropy.evaluate(d.x_local, d.s_local, d.m_local, d.list, grad ? &d.scratch : nullptr, n);
+  if (grad) {
+    for (std::size_t p = 0; p < n; ++p) grad->x[p] += d.scratch.x[p];
+    if (widths)
+      for (std::size_t p = 0; p < n; ++p) grad->s[p] += d.scratch.s[p];
+    // The ghosts' share goes back to their owners, summed there.
+    const auto t1 = Clock::now();
+    detail::petsc_check(PetscSFReduceBegin(d.sf, d.vec3_type, d.scratch.x.data() + n, grad->x.data(), MPI_SUM),
+                        "PetscSFReduceBegin");
+    detail::petsc_check(PetscSFReduceEnd(d.sf, d.vec3_type, d.scratch.x.data() + n, grad->x.data(), MPI_SUM),
+                        "PetscSFReduceEnd");
+    if (widths) {
+      detail::petsc_check(PetscSFReduceBegin(d.sf, MPI_DOUBLE, d.scratch.s.data() + n, grad->s.data(), MPI_SUM),
+                          "PetscSFReduceBegin");
+      detail::petsc_check(PetscSFReduceEnd(d.sf, MPI_DOUBLE, d.scratch.s.data() + n, grad->s.data(), MPI_SUM),
+                          "PetscSFReduceEnd");
+    }
+    d.stats.bytes_sent += static_cast<double>(n_local - n) * (sizeof(Vec3) + (widths ? sizeof(double) : 0));
+    exchange += seconds_since(t1);
+    Gradient barrier_grad;
+    barrier_grad.resize(n, false);
+    parts.barrier = d.barrier.evaluate(x, d.m, &barrier_grad);
+    for (std::size_t p = 0; p < n; ++p) grad->x[p] += barrier_grad.x[p];
+  } else {
+    parts.barrier = d.barrier.evaluate(x, d.m, nullptr);
+  }
+  const auto t2 = Clock::now();
+  double local[3] = {parts.transport, parts.entropy, parts.barrier}, global[3];
+  MPI_Allreduce(local, global, 3, MPI_DOUBLE, MPI_SUM, d.comm);
+  exchange += seconds_since(t2);
+  parts.transport = global[0];
+  parts.entropy = global[1];
+  parts.barrier = global[2];
+  d.stats.seconds += exchange;
+  ++d.stats.evaluations;
+  return parts;
+}
+
+std::size_t DistributedFunctional::owned() const { return impl_->m.size(); }
+const ExchangeStats& DistributedFunctional::exchange() const { return impl_->stats; }
+const NeighborList& DistributedFunctional::list() const { return impl_->list; }
+
+}  // namespace otfp

@@ -1,0 +1,74 @@
+// PETSc's process state for the otfp::mpi component (src/mpi/petsc_session.hpp).
+#include "petsc_session.hpp"
+
+#include <csignal>
+#include <cstdlib>
+#include <iterator>
+#include <stdexcept>
+#include <string>
+
+#include "otfp/mpi.hpp"
+#include "otfp/tao.hpp"
+
+namespace otfp::detail {
+
+std::mutex& petsc_mutex() {
+  static std::mutex m;
+  return m;
+}
+
+void petsc_check(PetscErrorCode ierr, const char* what) {
+  if (ierr != 0)
+    throw std::runtime_error(std::string("PETSc: ") + what + " failed (error " + std::to_string(ierr) + ")");
+}
+
+void ensure_petsc() {
+  PetscBool initialized = PETSC_FALSE;
+  petsc_check(PetscInitialized(&initialized), "PetscInitialized");
+  if (initialized) return;
+  // Without PETSc's signal handlers: they would replace the sanitizers' and
+  // the command-line tool's own.
+  petsc_check(PetscOptionsSetValue(nullptr, "-no_signal_handler", nullptr), "PetscOptionsSetValue");
+  // Open MPI's initialisation (inside PETSc's) installs its own SIGSEGV and
+  // SIGBUS handlers: the process's dispositions are put back as they were.
+  const int signals[] = {SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGABRT, SIGINT, SIGTERM};
+  struct sigaction saved[std::size(signals)];
+  for (std::size_t i = 0; i < std::size(signals); ++i) sigaction(signals[i], nullptr, &saved[i]);
+  const PetscErrorCode ierr = PetscInitializeNoArguments();
+  for (std::size_t i = 0; i < std::size(signals); ++i) sigaction(signals[i], &saved[i], nullptr);
+  petsc_check(ierr, "PetscInitializeNoArguments");
+  // Errors come back as codes (turned into exceptions by petsc_check), with
+  // no traceback printed on stderr.
+  petsc_check(PetscPushErrorHandler(PetscReturnErrorHandler, nullptr), "PetscPushErrorHandler");
+  std::atexit([] {
+    PetscBool finalized = PETSC_TRUE;
+    if (PetscFinalized(&finalized) == 0 && !finalized) PetscFinalize();
+  });
+}
+
+}  // namespace otfp::detail
+
+namespace otfp {
+
+std::string petsc_version() {
+  return "PETSc " + std::to_string(PETSC_VERSION_MAJOR) + "." + std::to_string(PETSC_VERSION_MINOR) + "." +
+         std::to_string(PETSC_VERSION_SUBMINOR);
+}
+
+int world_rank() {
+  const std::lock_guard<std::mutex> lock(detail::petsc_mutex());
+  detail::ensure_petsc();
+  int rank = 0;
+  MPI_Comm_rank(PETSC_COMM_WORLD, &rank);
+  return rank;
+}
+
+int world_size() {
+  const std::lock_guard<std::mutex> lock(detail::petsc_mutex());
+  detail::ensure_petsc();
+  int size = 1;
+  MPI_Comm_size(PETSC_COMM_WORLD, &size);
+  return size;
+}
+
+}  // namespace otfp

@@ -1,0 +1,22 @@
+#pragma once
+// PETSc (and through it MPI) for the otfp::mpi component: initialised once
+// per process on first use, finalised at exit. Internal to src/mpi/.
+#include <petscsys.h>
+
+#include <mutex>
+
+namespace otfp::detail {
+
+// Initialises PETSc unless the program did it itself (then its settings stay
+// as they are), without PETSc's or Open MPI's signal handlers. Throws
+// std::runtime_error if PETSc cannot start.
+void ensure_petsc();
+
+// Throws std::runtime_error naming `what` for a nonzero PETSc error code.
+void petsc_check(PetscErrorCode ierr, const char* what);
+
+// Debian's PETSc is built without thread safety: every PETSc call of the
+// component holds this lock.
+std::mutex& petsc_mutex();
+
+}  // namespace otfp::detail

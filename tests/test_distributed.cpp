@@ -1,0 +1,235 @@
+// DistributedFunctional against the serial Functional (otfp::mpi). Run by
+// ctest under mpiexec with 1, 2 and 3 ranks (Distributed.Np1/Np2/Np3): every
+// rank builds the same global cloud, owns the particles a decomposition gives
+// it, and compares F and its own gradient entries with the serial Functional
+// evaluated (by every rank) on the whole cloud.
+#include <gtest/gtest.h>
+#include <mpi.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include "otfp/distributed_functional.hpp"
+#include "otfp/functional.hpp"
+#include "otfp/geometry.hpp"
+#include "otfp/mpi.hpp"
+
+namespace {
+
+using namespace otfp;
+
+struct Cloud {
+  int dim = 3;
+  std::vector<Vec3> x;
+  std::vector<double> s, m;
+};
+
+Cloud ball_cloud(int dim, std::size_t n, std::uint64_t seed, bool varied_widths) {
+  Cloud c;
+  c.dim = dim;
+  Rng rng(seed);
+  DomainPtr ball = make_ball(dim, Vec3::Zero(), 1.0);
+  const double s0 = 0.6 * std::pow(1.0 / static_cast<double>(n), 1.0 / dim);
+  for (std::size_t i = 0; i < n; ++i) {
+    c.x.push_back(0.9 * ball->sample_interior(rng));
+    c.s.push_back(varied_widths ? s0 * rng.uniform(0.8, 1.25) : s0);
+    c.m.push_back(rng.uniform(0.5, 1.5) / static_cast<double>(n));
+  }
+  return c;
+}
+
+Cloud periodic_cloud(int dim, std::size_t n, std::uint64_t seed) {
+  Cloud c;
+  c.dim = dim;
+  Rng rng(seed);
+  const double s0 = 0.7 * std::pow(1.0 / static_cast<double>(n), 1.0 / dim);
+  for (std::size_t i = 0; i < n; ++i) {
+    Vec3 y = Vec3::Zero();
+    for (int k = 0; k < dim; ++k) y[k] = rng.uniform();
+    c.x.push_back(y);
+    c.s.push_back(s0);
+    c.m.push_back(1.0 / static_cast<double>(n));
+  }
+  return c;
+}
+
+enum class Split { Slabs, Random };
+
+std::vector<int> owners(const Cloud& c, Split split, std::uint64_t seed) {
+  const int ranks = world_size();
+  if (split == Split::Slabs) return partition_slabs(c.x, 0, ranks);
+  Rng rng(seed);
+  std::vector<int> o(c.x.size());
+  for (auto& r : o) r = static_cast<int>(rng.below(static_cast<std::uint64_t>(ranks)));
+  return o;
+}
+
+template <class T>
+std::vector<T> mine(const std::vector<T>& all, const std::vector<int>& owner) {
+  std::vector<T> out;
+  for (std::size_t p = 0; p < all.size(); ++p)
+    if (owner[p] == world_rank()) out.push_back(all[p]);
+  return out;
+}
+
+FunctionalOptions options(bool widths) {
+  FunctionalOptions o;
+  o.dt = 2e-3;
+  o.kappa = 1.0;
+  o.rho_ref = 1.0;
+  o.optimise_widths = widths;
+  return o;
+}
+
+// The configuration a step would evaluate: the reference moved by a smooth
+// field of amplitude `shift` (relative to the widths), widths changed a little.
+void displace(Cloud& c, double shift) {
+  for (std::size_t p = 0; p < c.x.size(); ++p) {
+    for (int k = 0; k < c.dim; ++k) c.x[p][k] += shift * c.s[p] * std::sin(3.0 * c.x[p][(k + 1) % c.dim] + k);
+    c.s[p] *= 1.0 + 0.1 * shift * std::cos(2.0 * c.x[p][0]);
+  }
+}
+
+struct Compared {
+  double f_rel = 0.0, g_rel = 0.0;
+};
+
+// F and this rank's gradient entries against the serial ones, after the
+// reference evaluation and after each displacement of `shifts`.
+std::vector<Compared> compare(const Cloud& reference, Split split, bool widths, const Barrier& barrier,
+                              const Periodicity& per, const std::vector<double>& shifts) {
+  const std::vector<int> owner = owners(reference, split, 99);
+  Functional serial(reference.dim, options(widths), barrier, per);
+  DistributedFunctional dist(reference.dim, options(widths), barrier, per);
+  serial.set_reference(reference.x, reference.s, reference.m);
+  dist.set_reference(mine(reference.x, owner), mine(reference.s, owner), mine(reference.m, owner));
+  std::vector<Compared> out;
+  Cloud c = reference;
+  for (std::size_t step = 0; step <= shifts.size(); ++step) {
+    if (step > 0) displace(c, shifts[step - 1]);
+    Gradient gs, gd;
+    const FunctionalParts fs = serial.evaluate(c.x, c.s, &gs);
+    const FunctionalParts fd = dist.evaluate(mine(c.x, owner), mine(c.s, owner), &gd);
+    Compared r;
+    r.f_rel = std::abs(fd.total() - fs.total()) / std::abs(fs.total());
+    double g_scale = 0.0, g_diff = 0.0;
+    std::size_t i = 0;
+    for (std::size_t p = 0; p < c.x.size(); ++p) {
+      g_scale = std::max(g_scale, gs.x[p].norm());
+      if (owner[p] != world_rank()) continue;
+      g_diff = std::max(g_diff, (gd.x[i] - gs.x[p]).norm());
+      if (widths) g_diff = std::max(g_diff, std::abs(gd.s[i] - gs.s[p]));
+      ++i;
+    }
+    EXPECT_EQ(i, gd.x.size());
+    r.g_rel = g_diff / g_scale;
+    // The worst rank's figure, so that every rank asserts the same thing.
+    MPI_Allreduce(MPI_IN_PLACE, &r.g_rel, 1, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD);
+    out.push_back(r);
+  }
+  return out;
+}
+
+void expect_round_off(const std::vector<Compared>& results) {
+  double f_worst = 0.0, g_worst = 0.0;
+  for (const Compared& r : results) {
+    f_worst = std::max(f_worst, r.f_rel);
+    g_worst = std::max(g_worst, r.g_rel);
+  }
+  if (world_rank() == 0)
+    std::printf("  %d ranks: |F - F_serial| / |F| <= %.2g, max |g - g_serial| / max |g_serial| <= %.2g\n",
+                world_size(), f_worst, g_worst);
+  for (std::size_t k = 0; k < results.size(); ++k) {
+    EXPECT_LT(results[k].f_rel, 1e-12) << "evaluation " << k;
+    EXPECT_LT(results[k].g_rel, 1e-12) << "evaluation " << k;
+  }
+}
+
+}  // namespace
+
+TEST(DistributedFunctional, MatchesSerialOnSlabs3D) {
+  const Cloud c = ball_cloud(3, 1500, 3, false);
+  DomainPtr ball = make_ball(3, Vec3::Zero(), 1.0);
+  // 0.05 widths: the list is kept; 2 widths: it (and the ghost sets) are rebuilt.
+  expect_round_off(compare(c, Split::Slabs, false, Barrier(ball, 100.0), Periodicity::none(3), {0.05, 2.0}));
+}
+
+TEST(DistributedFunctional, MatchesSerialOnSlabs2DWithWidths) {
+  const Cloud c = ball_cloud(2, 800, 4, true);
+  DomainPtr ball = make_ball(2, Vec3::Zero(), 1.0);
+  expect_round_off(compare(c, Split::Slabs, true, Barrier(ball, 100.0), Periodicity::none(2), {0.05, 2.0}));
+}
+
+TEST(DistributedFunctional, MatchesSerialOnRandomAssignments) {
+  for (int dim : {1, 2, 3}) {
+    SCOPED_TRACE(dim);
+    const Cloud c = ball_cloud(dim, dim == 1 ? 200 : 600, 5 + dim, true);
+    expect_round_off(compare(c, Split::Random, dim == 3, Barrier(), Periodicity::none(dim), {0.3, 2.0}));
+  }
+}
+
+TEST(DistributedFunctional, MatchesSerialAcrossPeriodicFaces) {
+  for (int dim : {2, 3}) {
+    SCOPED_TRACE(dim);
+    const Cloud c = periodic_cloud(dim, dim == 2 ? 700 : 1500, 7);
+    Periodicity per = Periodicity::none(dim);
+    for (int k = 0; k < dim; ++k) per.period[k] = 1.0;
+    // Slabs along x: the first and the last rank are neighbours across x = 0.
+    expect_round_off(compare(c, Split::Slabs, false, Barrier(), per, {0.05, 2.0}));
+  }
+}
+
+// Slabs are local: a rank's ghosts are a fraction of the others' particles,
+// and the exchange is counted.
+TEST(DistributedFunctional, SlabGhostsAreAFractionOfTheCloud) {
+  const Cloud c = ball_cloud(3, 4000, 8, false);
+  const std::vector<int> owner = partition_slabs(c.x, 0, world_size());
+  DistributedFunctional dist(3, options(false));
+  dist.set_reference(mine(c.x, owner), mine(c.s, owner), mine(c.m, owner));
+  Gradient g;
+  dist.evaluate(mine(c.x, owner), mine(c.s, owner), &g);
+  const ExchangeStats& st = dist.exchange();
+  EXPECT_EQ(st.rebuilds, 1);
+  EXPECT_EQ(st.evaluations, 1);
+  const std::size_t others = c.x.size() - dist.owned();
+  if (world_size() == 1) {
+    EXPECT_EQ(st.ghosts, 0u);
+  } else {
+    EXPECT_GT(st.ghosts, 0u);
+    EXPECT_LT(static_cast<double>(st.ghosts), 0.7 * static_cast<double>(others));
+    EXPECT_GT(st.bytes_sent, 0.0);
+  }
+}
+
+TEST(DistributedFunctional, PartitionSlabsBalancesCounts) {
+  Cloud c = ball_cloud(3, 1001, 9, false);
+  for (int ranks : {1, 2, 3, 7}) {
+    const std::vector<int> o = partition_slabs(c.x, 1, ranks);
+    std::vector<int> count(static_cast<std::size_t>(ranks), 0);
+    for (int r : o) ++count[static_cast<std::size_t>(r)];
+    const auto [lo, hi] = std::minmax_element(count.begin(), count.end());
+    EXPECT_LE(*hi - *lo, 1) << ranks << " ranks";
+    // Ordered along the axis: a lower rank's particles lie below a higher rank's.
+    for (std::size_t p = 0; p < c.x.size(); ++p)
+      for (std::size_t q = 0; q < c.x.size(); q += 37)
+        if (o[p] < o[q]) {
+          EXPECT_LE(c.x[p][1], c.x[q][1]);
+        }
+  }
+}
+
+int main(int argc, char** argv) {
+  ::testing::InitGoogleTest(&argc, argv);
+  const int rank = otfp::world_rank();  // initialises MPI (through PETSc)
+  if (rank != 0) {
+    // One report, rank 0's; the other ranks' failures still fail the run.
+    auto& listeners = ::testing::UnitTest::GetInstance()->listeners();
+    delete listeners.Release(listeners.default_result_printer());
+  }
+  int failed = RUN_ALL_TESTS() != 0 ? 1 : 0;
+  MPI_Allreduce(MPI_IN_PLACE, &failed, 1, MPI_INT, MPI_MAX, MPI_COMM_WORLD);
+  if (failed && rank != 0) std::fprintf(stderr, "rank %d: some test failed\n", rank);
+  return failed;
+}
