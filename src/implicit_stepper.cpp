@@ -43,20 +43,7 @@ void ImplicitOptions::validate() const {
   neighbor.validate();
 }
 
-namespace {
-
-FunctionalOptions functional_options(const ImplicitOptions& o) {
-  FunctionalOptions f;
-  f.kappa = o.kappa;
-  f.rho_ref = o.rho_ref;
-  f.width_metric = o.width_metric;
-  f.optimise_widths = o.width_mode == WidthMode::PerParticle;
-  f.neighbor = o.neighbor;
-  f.width_skin = o.width_skin;
-  return f;
-}
-
-}  // namespace
+using detail::functional_options;
 
 ImplicitStepper::StepProblem ImplicitStepper::step_problem(const ParticleSet& particles, double dt) {
   require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
@@ -138,7 +125,6 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   double s_min = s.empty() ? 1.0 : s[0];
   for (double v : s) s_min = std::min(s_min, v);
   MinimizerOptions mo = options_.minimizer;
-  mo.gradient_tolerance = options_.displacement_tolerance * s_min;
 
   // The anchor x^k: F there is the right-hand side of the energy inequality
   // the step must satisfy (Euler: E(x^k); BDF2: the modified energy, below).
@@ -153,34 +139,14 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   if (!papers_path) ++summary.evaluations;
   double f_start = f0;
 
-  // A line search stalls once the decrease it must see is below the round-off
-  // of F. With unit curvature in the scaled unknowns that happens at
-  // |g_z|^2 ~ eps_F, i.e. at a displacement ~ sqrt(eps_F dt / m). Closer to
-  // stationarity than that no solver can certify.
   double m_min = m.empty() ? 1.0 : m[0], mass = 0.0;
   for (double v : m) {
     m_min = std::min(m_min, v);
     mass += v;
   }
-  const double f_scale =
-      std::abs(before.transport) + std::abs(before.entropy) + std::abs(before.barrier) + options_.kappa * mass;
-  const double eps_f = 64.0 * std::numeric_limits<double>::epsilon() * f_scale;
-  // In the energy norm the whole gradient stalls at |g_z|^2 ~ eps_F, an RMS
-  // of sqrt(eps_F dt / M); a single particle at its floor shows as that floor
-  // over max_norm_factor.
-  const double floor_measure = energy_norm ? std::max(std::sqrt(eps_f * dt / std::max(mass, m_min)),
-                                                      std::sqrt(eps_f * dt / m_min) / options_.max_norm_factor)
-                                           : std::sqrt(eps_f * dt / m_min);
-  // Along the stiffest direction (the Hessian in the scaled unknowns is
-  // I + (dt/m) D^2 E, largest eigenvalue about 1 + 2 kappa beta dt,
-  // docs/method_notes.md) a line search stalls at sqrt(lambda_max) times that
-  // floor. A start (or a stalled solve) already below it and below the
-  // absolute tolerance is as converged as F can tell: without this a settled
-  // state stepped at 1000x the explicit limit looked unconverged to the
-  // relative rule and was retried with dt halved three times (51 evaluations
-  // per step, no motion; tests/test_reservoir.cpp, SettledStateIsAFixedPoint).
-  const double lambda_max = 1.0 + 2.0 * options_.kappa * dt / (s_min * s_min);
-  const double stall_measure = std::min(mo.gradient_tolerance, floor_measure * std::sqrt(lambda_max));
+  const detail::StepTolerances tol = detail::step_tolerances(options_, dt, s_min, m_min, mass, before);
+  mo.gradient_tolerance = tol.gradient_tolerance;
+  const double floor_measure = tol.floor_measure, stall_measure = tol.stall_measure;
   // Relative rule: the first gradient step is the explicit displacement of
   // the step; at small dt the absolute rule alone stops before the solution
   // has moved by much more than the tolerance (under-diffusion,

@@ -172,9 +172,23 @@ double TrackedObjective::measure(const double* z, const double* gradient) {
 
 // ---------------------------------------------------------------- minimize
 
-MinimizerSummary minimize(Objective& objective, std::vector<double>& z, const MinimizerOptions& options_in) {
-  MinimizerOptions options = options_in;  // the relative rule sets gradient_tolerance after the start point
+MinimizerSummary minimize(Objective& objective, std::vector<double>& z, const MinimizerOptions& options) {
   options.validate();
+  detail::BackendRunner runner = nullptr;
+  switch (options.backend) {
+    case Backend::Ceres: runner = detail::run_ceres; break;
+    case Backend::Nlopt: runner = detail::run_nlopt; break;
+    case Backend::Tao: runner = tao_runner.load(); break;
+  }
+  require(runner != nullptr, "solver.backend", to_string(options.backend), "not available in this program");
+  return detail::minimize_with(objective, z, options, runner, false);
+}
+
+namespace detail {
+
+MinimizerSummary minimize_with(Objective& objective, std::vector<double>& z, const MinimizerOptions& options_in,
+                               BackendRunner runner, bool collective) {
+  MinimizerOptions options = options_in;  // the relative rule sets gradient_tolerance after the start point
   const std::size_t n = objective.num_variables();
   require(z.size() == n, "z.size()", static_cast<double>(z.size()),
           "must equal objective.num_variables() = " + std::to_string(n));
@@ -211,7 +225,8 @@ MinimizerSummary minimize(Objective& objective, std::vector<double>& z, const Mi
                  options.gradient_tolerance_floor);
   summary.gradient_tolerance = options.gradient_tolerance;
 
-  if (start.measure <= std::max(options.gradient_tolerance, options.start_tolerance) || n == 0) {
+  // (A rank with no unknowns still takes part in a collective solve.)
+  if (start.measure <= std::max(options.gradient_tolerance, options.start_tolerance) || (n == 0 && !collective)) {
     summary.reason = TerminationReason::Converged;
     summary.final_value = start.value;
     summary.final_stopping_measure = start.measure;
@@ -222,11 +237,7 @@ MinimizerSummary minimize(Objective& objective, std::vector<double>& z, const Mi
   const std::vector<double> z_start = z;
   detail::BackendResult r;
   try {
-    switch (options.backend) {
-      case Backend::Ceres: r = detail::run_ceres(tracked, z, start, options); break;
-      case Backend::Nlopt: r = detail::run_nlopt(tracked, z, start, options); break;
-      case Backend::Tao: r = tao_runner.load()(tracked, z, start, options); break;
-    }
+    r = runner(tracked, z, start, options);
   } catch (...) {
     z = z_start;  // a half-finished run leaves no trace
     throw;
@@ -253,5 +264,7 @@ MinimizerSummary minimize(Objective& objective, std::vector<double>& z, const Mi
   summary.message = r.message;
   return finish();
 }
+
+}  // namespace detail
 
 }  // namespace otfp

@@ -85,6 +85,13 @@ using BackendRunner = BackendResult (*)(TrackedObjective&, std::vector<double>&,
 // The optional backends (TAO) register their runner here; nullptr unregisters.
 void set_backend_runner(Backend backend, BackendRunner runner);
 
+// minimize() with a given runner. collective: the objective is one process's
+// share of a problem solved together by several (its value and stopping
+// measure are already the global ones): a process with no unknowns still
+// runs the backend. minimize() validates the options before; this does not.
+MinimizerSummary minimize_with(Objective& objective, std::vector<double>& z, const MinimizerOptions& options,
+                               BackendRunner runner, bool collective);
+
 BackendResult run_ceres(TrackedObjective& objective, std::vector<double>& z, const StartPoint& start,
                         const MinimizerOptions& options);
 BackendResult run_nlopt(TrackedObjective& objective, std::vector<double>& z, const StartPoint& start,

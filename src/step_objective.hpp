@@ -3,6 +3,7 @@
 // one implicit step minimises, (28) in scaled unknowns, and the norm of its
 // stopping rule (stopping_measure). Definitions in src/step_objective.cpp.
 #include <cstddef>
+#include <functional>
 #include <vector>
 
 #include "otfp/functional.hpp"
@@ -28,9 +29,43 @@ namespace otfp::detail {
 // b'_p = b_p phi'(v^k) (at least b_p/2) keeps unit curvature at s^k below the
 // fold. F itself is unchanged (a change of unknowns, not a penalty or a
 // clamp), so a step still only lowers F and the energy inequality holds.
+//
+// The functional is reached through a StepFunctional: the serial Functional,
+// or one rank's share of a DistributedFunctional (src/mpi/), whose F is
+// already summed over the ranks. Its reductions make the objective's own
+// sums (the external potential, the stopping measure) and its verdicts (a
+// non-finite point) those of all the ranks; serially they are the identity.
+struct StepFunctional {
+  int dim = 3;
+  double c_w = 1.0;
+  std::function<FunctionalParts(const std::vector<Vec3>&, const std::vector<double>&, Gradient*)> evaluate;
+  std::function<bool(bool)> all;                  // true iff every rank's value is true (null: identity)
+  std::function<void(double*, int)> sum;          // in place, over the ranks (null: identity)
+  std::function<double(double)> max;             // over the ranks (null: identity)
+};
+
+StepFunctional serial_step_functional(Functional& f);
+
+// The functional's options of a step with these options (dt set per step).
+FunctionalOptions functional_options(const ImplicitOptions& o);
+
+// The thresholds of one step's stopping rule, from the smallest width and
+// mass, the total mass and F's parts at the anchor, each taken over every
+// particle of the step (every rank's in a distributed step).
+struct StepTolerances {
+  double gradient_tolerance = 0.0;  // displacement_tolerance x s_min
+  double floor_measure = 0.0;       // the round-off floor of the stopping measure
+  double stall_measure = 0.0;       // below it (and the tolerance) a start is as converged as F can tell
+};
+StepTolerances step_tolerances(const ImplicitOptions& o, double dt, double s_min, double m_min, double mass,
+                               const FunctionalParts& before);
+
 class StepObjective final : public Objective {
  public:
   StepObjective(Functional& f, const ExternalPotential& ext, const std::vector<Vec3>& x_anchor,
+                const std::vector<double>& s_anchor, const std::vector<double>& m, double dt, bool widths,
+                const std::vector<double>& weights, double s_max);
+  StepObjective(StepFunctional f, const ExternalPotential& ext, const std::vector<Vec3>& x_anchor,
                 const std::vector<double>& s_anchor, const std::vector<double>& m, double dt, bool widths,
                 const std::vector<double>& weights, double s_max);
 
@@ -62,7 +97,7 @@ class StepObjective final : public Objective {
   double width_unknown(std::size_t p, double s) const;
 
  private:
-  Functional& f_;
+  StepFunctional f_;
   const ExternalPotential& ext_;
   const std::vector<double>& s_ref_;
   const std::vector<double>& m_;

@@ -51,6 +51,7 @@ class DistributedFunctional {
   // last build (or a width has left its margin), as the serial list is.
   FunctionalParts evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad);
 
+  void set_dt(double dt);  // the transport term's step (> 0)
   std::size_t owned() const;
   const ExchangeStats& exchange() const;
   const NeighborList& list() const;  // over this rank's particles, then its ghosts

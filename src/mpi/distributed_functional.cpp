@@ -113,7 +113,7 @@ struct DistributedFunctional::Impl {
         list(o.neighbor) {}
 
   ~Impl() {
-    const std::lock_guard<std::mutex> lock(detail::petsc_mutex());
+    const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
     if (sf != nullptr) PetscSFDestroy(&sf);
     if (vec3_type != MPI_DATATYPE_NULL) MPI_Type_free(&vec3_type);
   }
@@ -268,7 +268,7 @@ DistributedFunctional::DistributedFunctional(int dim, FunctionalOptions options,
                                              Periodicity periodicity) {
   options.validate();
   require(dim >= 1 && dim <= 3, "dim", dim, "must be 1, 2 or 3");
-  const std::lock_guard<std::mutex> lock(detail::petsc_mutex());
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   detail::ensure_petsc();
   impl_ = std::make_unique<Impl>(dim, options, std::move(barrier), periodicity);
   impl_->comm = PETSC_COMM_WORLD;
@@ -295,7 +295,7 @@ FunctionalParts DistributedFunctional::evaluate(const std::vector<Vec3>& x, cons
   Impl& d = *impl_;
   require(x.size() == d.m.size() && s.size() == d.m.size(), "configuration size", static_cast<double>(x.size()),
           "must match the owned particles set by set_reference()");
-  const std::lock_guard<std::mutex> lock(detail::petsc_mutex());
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   const auto t0 = Clock::now();
   if (d.needs_rebuild(x, s))
     d.rebuild(x, s);
@@ -347,6 +347,12 @@ FunctionalParts DistributedFunctional::evaluate(const std::vector<Vec3>& x, cons
   d.stats.seconds += exchange;
   ++d.stats.evaluations;
   return parts;
+}
+
+void DistributedFunctional::set_dt(double dt) {
+  require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
+  impl_->options.dt = dt;
+  impl_->transport = TransportTerm(dt, width_metric_coefficient(impl_->options.width_metric, impl_->dim));
 }
 
 std::size_t DistributedFunctional::owned() const { return impl_->m.size(); }

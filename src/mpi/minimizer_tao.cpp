@@ -147,9 +147,12 @@ PetscErrorCode convergence_test(Tao tao, void* data) {
   return 0;
 }
 
-BackendResult run_tao(TrackedObjective& objective, std::vector<double>& z, const StartPoint& start,
-                      const MinimizerOptions& options) {
-  const std::lock_guard<std::mutex> lock(petsc_mutex());
+// On PETSC_COMM_SELF (the serial backend) or PETSC_COMM_WORLD (a
+// distributed solve: z is this rank's share, the objective's value and
+// measure are global, and every rank runs this in lockstep).
+BackendResult run_tao_on(MPI_Comm comm, TrackedObjective& objective, std::vector<double>& z, const StartPoint& start,
+                         const MinimizerOptions& options) {
+  const std::lock_guard<std::recursive_mutex> lock(petsc_mutex());
   ensure_petsc();
   if (z.size() > static_cast<std::size_t>(std::numeric_limits<PetscInt>::max()))
     throw std::runtime_error("PETSc/TAO: " + std::to_string(z.size()) + " unknowns exceed PetscInt");
@@ -164,7 +167,10 @@ BackendResult run_tao(TrackedObjective& objective, std::vector<double>& z, const
   run.last_value = start.value;
 
   VecHandle x;
-  check(VecCreateSeq(PETSC_COMM_SELF, n, &x.v), "VecCreateSeq");
+  if (comm == PETSC_COMM_SELF)
+    check(VecCreateSeq(PETSC_COMM_SELF, n, &x.v), "VecCreateSeq");
+  else
+    check(VecCreateMPI(comm, n, PETSC_DETERMINE, &x.v), "VecCreateMPI");
   {
     PetscScalar* xx = nullptr;
     check(VecGetArray(x.v, &xx), "VecGetArray");
@@ -178,7 +184,7 @@ BackendResult run_tao(TrackedObjective& objective, std::vector<double>& z, const
   const std::string memory = std::to_string(options.lbfgs_memory);
   check(PetscOptionsSetValue(nullptr, "-tao_lmvm_mat_lmvm_hist_size", memory.c_str()), "PetscOptionsSetValue");
   TaoHandle tao;
-  check(TaoCreate(PETSC_COMM_SELF, &tao.t), "TaoCreate");
+  check(TaoCreate(comm, &tao.t), "TaoCreate");
   check(TaoSetType(tao.t, TAOLMVM), "TaoSetType");
   check(TaoSetFromOptions(tao.t), "TaoSetFromOptions");
   check(TaoSetSolution(tao.t, x.v), "TaoSetSolution");
@@ -227,7 +233,17 @@ BackendResult run_tao(TrackedObjective& objective, std::vector<double>& z, const
   return r;
 }
 
+BackendResult run_tao(TrackedObjective& objective, std::vector<double>& z, const StartPoint& start,
+                      const MinimizerOptions& options) {
+  return run_tao_on(PETSC_COMM_SELF, objective, z, start, options);
+}
+
 }  // namespace
+
+BackendResult run_tao_world(TrackedObjective& objective, std::vector<double>& z, const StartPoint& start,
+                            const MinimizerOptions& options) {
+  return run_tao_on(PETSC_COMM_WORLD, objective, z, start, options);
+}
 
 }  // namespace otfp::detail
 

@@ -12,8 +12,8 @@
 
 namespace otfp::detail {
 
-std::mutex& petsc_mutex() {
-  static std::mutex m;
+std::recursive_mutex& petsc_mutex() {
+  static std::recursive_mutex m;
   return m;
 }
 
@@ -56,7 +56,7 @@ std::string petsc_version() {
 }
 
 int world_rank() {
-  const std::lock_guard<std::mutex> lock(detail::petsc_mutex());
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   detail::ensure_petsc();
   int rank = 0;
   MPI_Comm_rank(PETSC_COMM_WORLD, &rank);
@@ -64,7 +64,7 @@ int world_rank() {
 }
 
 int world_size() {
-  const std::lock_guard<std::mutex> lock(detail::petsc_mutex());
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   detail::ensure_petsc();
   int size = 1;
   MPI_Comm_size(PETSC_COMM_WORLD, &size);

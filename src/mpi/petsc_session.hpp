@@ -16,7 +16,19 @@ void ensure_petsc();
 void petsc_check(PetscErrorCode ierr, const char* what);
 
 // Debian's PETSc is built without thread safety: every PETSc call of the
-// component holds this lock.
-std::mutex& petsc_mutex();
+// component holds this lock. Recursive: a distributed solve's objective
+// (inside TAO, under the lock) evaluates the distributed functional.
+std::recursive_mutex& petsc_mutex();
+
+}  // namespace otfp::detail
+
+#include "../minimizer_backends.hpp"
+
+namespace otfp::detail {
+
+// The TAO backend on PETSC_COMM_WORLD, for a solve shared by all ranks
+// (minimize_with(..., run_tao_world, true); src/mpi/minimizer_tao.cpp).
+BackendResult run_tao_world(TrackedObjective& objective, std::vector<double>& z, const StartPoint& start,
+                            const MinimizerOptions& options);
 
 }  // namespace otfp::detail

@@ -1,0 +1,187 @@
+// One implicit Euler step (28) over the ranks (otfp/distributed_stepper.hpp).
+//
+// The serial stepper's problem, shared: the objective is StepObjective (the
+// scaled unknowns z = sqrt(m/dt) x and z_s = b log(s/s^k), the stopping
+// measure) on a StepFunctional whose F is the DistributedFunctional's and
+// whose reductions are MPI's; the thresholds are step_tolerances() of the
+// global smallest width and mass, total mass and F; minimize_with() runs the
+// library's start checks and relative rule around TAO on PETSC_COMM_WORLD.
+// Every verdict (converged, non-finite, energy inequality) is computed from
+// global values, so all ranks accept or refuse the step together.
+#include "otfp/distributed_stepper.hpp"
+
+#include <mpi.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <string>
+
+#include "../minimizer_backends.hpp"
+#include "../step_objective.hpp"
+#include "otfp/tao.hpp"
+#include "petsc_session.hpp"
+
+namespace otfp {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+void require_supported(const ImplicitOptions& o) {
+  o.validate();
+  require(o.minimizer.backend == Backend::Tao, "minimizer.backend", to_string(o.minimizer.backend),
+          "a distributed step is solved by TAO: must be tao");
+  require(o.time_scheme == TimeScheme::Euler, "time_scheme", to_string(o.time_scheme),
+          "a distributed step is implicit Euler only (BDF2 not yet)");
+  require(o.predictor == Predictor::None, "predictor", to_string(o.predictor),
+          "a distributed step starts from x^k (no predictor yet)");
+}
+
+}  // namespace
+
+struct DistributedImplicitStepper::Impl {
+  int dim;
+  ImplicitOptions options;
+  DistributedFunctional functional;
+  MPI_Comm comm = MPI_COMM_NULL;
+
+  Impl(int d, const ImplicitOptions& o, Barrier b, Periodicity p)
+      : dim(d), options(o), functional(d, detail::functional_options(o), std::move(b), p) {}
+
+  detail::StepFunctional step_functional() {
+    detail::StepFunctional sf;
+    sf.dim = dim;
+    sf.c_w = width_metric_coefficient(options.width_metric, dim);
+    sf.evaluate = [this](const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* g) {
+      return functional.evaluate(x, s, g);
+    };
+    sf.all = [this](bool local) {
+      int v = local ? 1 : 0, all = 0;
+      MPI_Allreduce(&v, &all, 1, MPI_INT, MPI_MIN, comm);
+      return all == 1;
+    };
+    sf.sum = [this](double* v, int n) { MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_DOUBLE, MPI_SUM, comm); };
+    sf.max = [this](double v) {
+      double out = v;
+      MPI_Allreduce(&v, &out, 1, MPI_DOUBLE, MPI_MAX, comm);
+      return out;
+    };
+    return sf;
+  }
+};
+
+DistributedImplicitStepper::DistributedImplicitStepper(int dim, ImplicitOptions options, Barrier barrier,
+                                                       Periodicity periodicity) {
+  register_tao_backend();
+  require_supported(options);
+  impl_ = std::make_unique<Impl>(dim, options, std::move(barrier), periodicity);
+  impl_->comm = PETSC_COMM_WORLD;
+}
+
+DistributedImplicitStepper::~DistributedImplicitStepper() = default;
+
+StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
+  require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
+  require(owned.dim() == impl_->dim, "particles dim", owned.dim(),
+          "must equal the stepper's dim " + std::to_string(impl_->dim));
+  const auto t0 = Clock::now();
+  Impl& d = *impl_;
+  const ImplicitOptions& o = d.options;
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+
+  StepSummary summary;
+  summary.dt = dt;
+  const std::vector<Vec3>& x = owned.positions();
+  const std::vector<double>& s = owned.widths();
+  const std::vector<double>& m = owned.masses();
+  const bool widths = o.width_mode == WidthMode::PerParticle;
+  const int builds_before = d.functional.exchange().rebuilds;
+
+  d.functional.set_dt(dt);
+  d.functional.set_reference(x, s, m);
+  const double s_max = o.max_width_factor > 0.0 ? o.max_width_factor * o.nominal_width : 0.0;
+  const ExternalPotential none;
+  detail::StepObjective objective(d.step_functional(), none, x, s, m, dt, widths, {}, s_max);
+  if (o.stopping_norm == StoppingNorm::Energy) objective.set_max_norm_factor(o.max_norm_factor);
+  std::vector<double> z(objective.num_variables());
+  objective.pack(x, s, z.data());
+
+  // The thresholds of the serial stepper, from global figures.
+  double mins[2] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
+  double mass = 0.0;
+  for (std::size_t p = 0; p < m.size(); ++p) {
+    mins[0] = std::min(mins[0], s[p]);
+    mins[1] = std::min(mins[1], m[p]);
+    mass += m[p];
+  }
+  MPI_Allreduce(MPI_IN_PLACE, mins, 2, MPI_DOUBLE, MPI_MIN, d.comm);
+  MPI_Allreduce(MPI_IN_PLACE, &mass, 1, MPI_DOUBLE, MPI_SUM, d.comm);
+  const double s_min = std::isfinite(mins[0]) ? mins[0] : 1.0;
+  const double m_min = std::isfinite(mins[1]) ? mins[1] : 1.0;
+
+  double f0 = 0.0;
+  const bool start_ok = objective.evaluate(z.data(), &f0, nullptr);
+  const FunctionalParts before = objective.parts();
+  const detail::StepTolerances tol = detail::step_tolerances(o, dt, s_min, m_min, mass, before);
+  MinimizerOptions mo = o.minimizer;
+  mo.gradient_tolerance = tol.gradient_tolerance;
+  mo.relative_gradient_tolerance = o.relative_tolerance;  // the papers' path: the rule at x^k
+  mo.gradient_tolerance_floor = tol.floor_measure;
+  mo.start_tolerance = tol.stall_measure;
+  mo.validate();
+
+  MinimizerSummary ms;
+  if (start_ok) ms = detail::minimize_with(objective, z, mo, detail::run_tao_world, true);
+  summary.reason = start_ok ? ms.reason : TerminationReason::NonFinite;
+  summary.iterations = ms.iterations;
+  summary.evaluations = ms.evaluations;
+  summary.solver_seconds = ms.solver_seconds;
+  summary.residual_displacement = ms.final_stopping_measure;
+  summary.gradient_tolerance = ms.gradient_tolerance;
+  summary.parts_before = before;
+  summary.f_before = summary.f_start = f0;
+
+  bool ok = start_ok && ms.success;
+  if (start_ok && !ms.success && ms.reason == TerminationReason::LineSearchFailure &&
+      ms.final_stopping_measure <= std::max({ms.gradient_tolerance, tol.floor_measure, tol.stall_measure})) {
+    ok = true;
+    summary.message = "converged to the round-off floor of F";
+  }
+  std::vector<Vec3> x_new = x;
+  std::vector<double> s_new = s;
+  if (ok) {
+    double f1 = 0.0;
+    objective.unpack(z.data(), x_new, s_new);
+    ok = objective.evaluate(z.data(), &f1, nullptr);
+    summary.parts_after = objective.parts();
+    summary.f_after = f1;
+    // The energy inequality F(x^{k+1}) <= F(x^k) (+ round-off), as the serial step.
+    const double slack =
+        o.energy_tolerance * (std::abs(f0) + std::abs(before.entropy) + std::abs(before.barrier) + 1e-300);
+    if (ok && f1 > f0 + slack) {
+      ok = false;
+      summary.message = "energy increased: F_after - F_before = " + std::to_string(f1 - f0);
+    }
+  } else if (summary.message.empty()) {
+    summary.message = start_ok ? "solver: " + to_string(ms.reason) + (ms.message.empty() ? "" : " (" + ms.message + ")")
+                               : "non-finite F at the start of the step";
+  }
+  summary.list_builds = d.functional.exchange().rebuilds - builds_before;
+  if (ok) {
+    owned.positions() = std::move(x_new);
+    owned.widths() = std::move(s_new);
+  } else {
+    summary.rejected_solves = 1;
+  }
+  summary.accepted = ok;
+  summary.wall_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  return summary;
+}
+
+const ExchangeStats& DistributedImplicitStepper::exchange() const { return impl_->functional.exchange(); }
+const ImplicitOptions& DistributedImplicitStepper::options() const { return impl_->options; }
+
+}  // namespace otfp
