@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "otfp/decomposition.hpp"
 #include "otfp/distributed_functional.hpp"
 #include "otfp/distributed_stepper.hpp"
 #include "otfp/geometry.hpp"

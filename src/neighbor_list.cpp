@@ -456,6 +456,20 @@ bool NeighborList::needs_rebuild(const std::vector<Vec3>& x, const std::vector<d
   return 2.0 * max_displacement(x) + growth > skin_;
 }
 
+void NeighborList::drop_pairs_beyond(std::size_t rows) {
+  const std::size_t n = size();
+  if (rows >= n) return;
+  std::size_t out = offsets_[rows];
+  for (std::size_t p = rows; p < n; ++p) {
+    const std::size_t begin = offsets_[p], end = offsets_[p + 1];
+    offsets_[p] = static_cast<std::uint32_t>(out);
+    for (std::size_t e = begin; e < end; ++e)
+      if (indices_[e] < rows) indices_[out++] = indices_[e];
+  }
+  offsets_[n] = static_cast<std::uint32_t>(out);
+  indices_.resize(out);
+}
+
 std::size_t NeighborList::memory_bytes() const {
   return offsets_.capacity() * sizeof(std::uint32_t) + indices_.capacity() * sizeof(std::uint32_t) +
          x_build_.capacity() * sizeof(Vec3) + s_build_.capacity() * sizeof(double);

@@ -526,3 +526,26 @@ TEST(CliRobustness, SlipsGetAHint) {
   for (const char* code : {"0 ", "1 ", "2 ", "3 "}) EXPECT_TRUE(contains(text, code)) << text;
   EXPECT_TRUE(contains(text, "Exit codes")) << text;
 }
+
+// Under mpirun on several ranks every rank would run the whole serial
+// simulation into the same directory: the tool refuses (exit 2, one line,
+// nothing written) until a run is distributed (docs/distributed.md). One
+// rank is an ordinary run.
+TEST(CliRobustness, RefusesToRunOnSeveralRanks) {
+  for (const char* var : {"OMPI_COMM_WORLD_SIZE", "PMI_SIZE"}) {
+    SCOPED_TRACE(var);
+    const fs::path out = fresh_dir("several_ranks");
+    fs::remove_all(out);
+    std::string output;
+    setenv(var, "2", 1);
+    const int code = run_binary("run " + kFast + kShort + " --out " + out.string(), output);
+    unsetenv(var);
+    EXPECT_EQ(code, 2) << output;
+    EXPECT_EQ(lines(output), 1) << output;
+    EXPECT_TRUE(contains(output, std::string(var) + " = 2: otfp runs on one rank")) << output;
+    EXPECT_FALSE(fs::exists(out));
+    setenv(var, "1", 1);
+    EXPECT_EQ(run_binary("run " + kFast + kShort + " --out " + out.string(), output), 0) << output;
+    unsetenv(var);
+  }
+}

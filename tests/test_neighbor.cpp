@@ -106,6 +106,34 @@ TEST(NeighborList, MatchesBruteForceOnRandomClouds) {
   }
 }
 
+// drop_pairs_beyond(k): rows below k unchanged, rows from k on keep exactly
+// their entries below k, in their order (brute force: the pair set).
+TEST(NeighborList, DropPairsBeyondKeepsOnlyPairsWithARowBelow) {
+  ParticleSet ps = random_cloud(3, 1200, -1.0, 1.0, 0.05, 0.3, 1.0, 41);
+  NeighborList full;
+  full.build(ps.positions(), ps.widths(), Periodicity::none(3));
+  const std::size_t k = 700;
+  NeighborList cut = full;
+  cut.drop_pairs_beyond(k);
+  PairSet expected;
+  for (const auto& [p, q] : list_pairs(full))
+    if (p < k || q < k) expected.emplace(p, q);
+  EXPECT_EQ(list_pairs(cut), expected);
+  EXPECT_LT(cut.num_entries(), full.num_entries());
+  for (std::size_t p = 0; p <= k; ++p) EXPECT_EQ(cut.offsets()[p], full.offsets()[p]);
+  for (std::size_t p = k; p < full.size(); ++p) {
+    std::vector<std::uint32_t> kept;
+    for (std::uint32_t e = full.offsets()[p]; e < full.offsets()[p + 1]; ++e)
+      if (full.indices()[e] < k) kept.push_back(full.indices()[e]);
+    const std::vector<std::uint32_t> row(cut.indices().begin() + cut.offsets()[p],
+                                         cut.indices().begin() + cut.offsets()[p + 1]);
+    EXPECT_EQ(row, kept) << "row " << p;
+  }
+  NeighborList same = full;
+  same.drop_pairs_beyond(full.size());
+  expect_identical(same, full, "rows = size");
+}
+
 TEST(NeighborList, PeriodicImagesMatchBruteForce) {
   for (int dim = 1; dim <= 3; ++dim) {
     DomainPtr box = make_periodic_box(dim, Vec3::Constant(-1.0), Vec3::Constant(1.0));

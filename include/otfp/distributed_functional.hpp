@@ -7,7 +7,8 @@
 // summed back into their owners. F and its gradient equal the serial
 // Functional's on the union of the ranks' particles, up to the order of
 // floating-point sums, for any assignment of particles to ranks (tested on
-// slabs and on random assignments with 1, 2 and 3 ranks).
+// slabs and on random assignments with 1, 2 and 3 ranks). Which rank owns
+// which particle is the caller's (otfp/decomposition.hpp).
 //
 // Not yet: image blobs at mirrored walls (set_images) - a Barrier and
 // periodic axes are supported.
@@ -19,9 +20,6 @@
 
 namespace otfp {
 
-// Owner rank of each particle: `ranks` slabs along `axis` with equal counts
-// (ties broken by index), the simplest decomposition by position.
-std::vector<int> partition_slabs(const std::vector<Vec3>& x, int axis, int ranks);
 
 // What the halo exchanges cost, summed over this rank's evaluations.
 struct ExchangeStats {

@@ -75,13 +75,19 @@ class NeighborList {
   double particle_radius(double width_s) const { return cutoff_radius(width_s, options_.kernel_tolerance) + skin_; }
   // Largest displacement since the last build (minimum image).
   double max_displacement(const std::vector<Vec3>& x) const;
+  // Keeps, in the rows p >= rows, only the entries q < rows: the pairs of
+  // two blobs that carry no term of their own (a DistributedFunctional's
+  // ghosts, whose rows only gather the derivatives of the own blobs' terms)
+  // are dropped. Rows below `rows` are unchanged. Until the next build the
+  // list is then no longer symmetric.
+  void drop_pairs_beyond(std::size_t rows);
 
   bool built() const { return built_; }
   std::size_t size() const { return offsets_.empty() ? 0 : offsets_.size() - 1; }
   double list_radius() const { return list_radius_; }  // largest particle radius R_p at build time
   double cutoff() const { return cutoff_; }  // cut-off of the widest blob at build time
   double skin() const { return skin_; }
-  std::size_t num_entries() const { return indices_.size(); }  // = 2 * number of pairs
+  std::size_t num_entries() const { return indices_.size(); }  // = 2 * number of pairs (after a build)
   int build_count() const { return build_count_; }
   double build_seconds() const { return build_seconds_; }  // wall time of all builds so far
   const Periodicity& periodicity() const { return per_; }

@@ -223,6 +223,18 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
     return error(err, std::string(e.what()) + hint + " (try --help)", kUsage);
   }
 
+  // Started by mpirun on several ranks, every rank would run the whole
+  // serial simulation into the same directory: refused until the run itself
+  // is distributed (docs/distributed.md). Open MPI and PMI (MPICH, Slurm)
+  // tell the world size in the environment.
+  for (const char* var : {"OMPI_COMM_WORLD_SIZE", "PMI_SIZE"})
+    if (const char* ranks = std::getenv(var); ranks != nullptr && std::atoi(ranks) > 1)
+      return error(err,
+                   std::string(var) + " = " + ranks +
+                       ": otfp runs on one rank (a distributed run is not built yet; the library's "
+                       "DistributedImplicitStepper is, docs/distributed.md)",
+                   kUsage);
+
   if (sweep->parsed()) {
     if (out_dir.empty()) return error(err, "--out = \"\": must be a non-empty path", kUsage);
     try {

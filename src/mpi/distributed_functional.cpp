@@ -40,19 +40,6 @@
 
 namespace otfp {
 
-std::vector<int> partition_slabs(const std::vector<Vec3>& x, int axis, int ranks) {
-  require(axis >= 0 && axis < 3, "axis", axis, "must be 0, 1 or 2");
-  require(ranks >= 1, "ranks", ranks, "must be >= 1");
-  std::vector<std::size_t> order(x.size());
-  std::iota(order.begin(), order.end(), std::size_t{0});
-  std::stable_sort(order.begin(), order.end(),
-                   [&](std::size_t a, std::size_t b) { return x[a][axis] < x[b][axis]; });
-  std::vector<int> owner(x.size(), 0);
-  const std::size_t n = x.size();
-  for (std::size_t k = 0; k < n; ++k)
-    owner[order[k]] = static_cast<int>((k * static_cast<std::size_t>(ranks)) / std::max<std::size_t>(n, 1));
-  return owner;
-}
 
 namespace {
 
@@ -231,6 +218,9 @@ struct DistributedFunctional::Impl {
     s_list_local.resize(n_local);
     for (std::size_t p = 0; p < n_local; ++p) s_list_local[p] = list_width(s_local[p]);
     list.build(x_local, s_list_local, per);
+    // Ghost rows only gather the derivatives of the own terms: their
+    // entries to other ghosts would add zeros (docs/distributed.md).
+    list.drop_pairs_beyond(n_owned);
     x_build = x;
     s_build.resize(n_owned);
     for (std::size_t p = 0; p < n_owned; ++p) s_build[p] = list_width(s[p]);

@@ -1,0 +1,151 @@
+// Slabs, their balancing and the migration of particles between ranks
+// (otfp/decomposition.hpp). Collectives go through MPI on PETSC_COMM_WORLD.
+#include "otfp/decomposition.hpp"
+
+#include <mpi.h>
+#include <petscsys.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <mutex>
+#include <numeric>
+#include <string>
+
+#include "petsc_session.hpp"
+
+namespace otfp {
+
+std::vector<int> partition_slabs(const std::vector<Vec3>& x, int axis, int ranks) {
+  require(axis >= 0 && axis < 3, "axis", axis, "must be 0, 1 or 2");
+  require(ranks >= 1, "ranks", ranks, "must be >= 1");
+  std::vector<std::size_t> order(x.size());
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  std::stable_sort(order.begin(), order.end(),
+                   [&](std::size_t a, std::size_t b) { return x[a][axis] < x[b][axis]; });
+  std::vector<int> owner(x.size(), 0);
+  const std::size_t n = x.size();
+  for (std::size_t k = 0; k < n; ++k)
+    owner[order[k]] = static_cast<int>((k * static_cast<std::size_t>(ranks)) / std::max<std::size_t>(n, 1));
+  return owner;
+}
+
+int SlabLayout::owner(const Vec3& x) const {
+  // The number of cuts at or below x[axis] is the slab's index.
+  return static_cast<int>(std::upper_bound(cuts.begin(), cuts.end(), x[axis]) - cuts.begin());
+}
+
+namespace {
+
+MPI_Comm world() {
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  detail::ensure_petsc();
+  return PETSC_COMM_WORLD;
+}
+
+}  // namespace
+
+SlabLayout balanced_slabs(const std::vector<Vec3>& owned_x, int axis) {
+  require(axis >= 0 && axis < 3, "axis", axis, "must be 0, 1 or 2");
+  const MPI_Comm comm = world();
+  int size = 1;
+  MPI_Comm_size(comm, &size);
+  SlabLayout layout;
+  layout.axis = axis;
+  if (size == 1) return layout;
+  // The global range and count.
+  double range[2] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
+  for (const Vec3& y : owned_x) {
+    range[0] = std::min(range[0], y[axis]);
+    range[1] = std::min(range[1], -y[axis]);
+  }
+  MPI_Allreduce(MPI_IN_PLACE, range, 2, MPI_DOUBLE, MPI_MIN, comm);
+  long long total = static_cast<long long>(owned_x.size());
+  MPI_Allreduce(MPI_IN_PLACE, &total, 1, MPI_LONG_LONG, MPI_SUM, comm);
+  const auto cuts = static_cast<std::size_t>(size - 1);
+  if (total == 0) {
+    layout.cuts.assign(cuts, 0.0);
+    return layout;
+  }
+  // Bisection of every cut at once: cut r (1-based) is the smallest value
+  // with at least r total / size positions below it. 64 halvings take the
+  // bracket to the spacing of doubles around the cut.
+  std::vector<double> lo(cuts, range[0]), hi(cuts, -range[1]), mid(cuts);
+  std::vector<long long> below(cuts);
+  for (int it = 0; it < 64; ++it) {
+    for (std::size_t r = 0; r < cuts; ++r) mid[r] = 0.5 * (lo[r] + hi[r]);
+    std::fill(below.begin(), below.end(), 0LL);
+    for (const Vec3& y : owned_x)
+      for (std::size_t r = 0; r < cuts; ++r)
+        if (y[axis] < mid[r]) ++below[r];
+    MPI_Allreduce(MPI_IN_PLACE, below.data(), static_cast<int>(cuts), MPI_LONG_LONG, MPI_SUM, comm);
+    for (std::size_t r = 0; r < cuts; ++r) {
+      const long long target = (static_cast<long long>(r + 1) * total) / size;
+      (below[r] >= target ? hi[r] : lo[r]) = mid[r];
+    }
+  }
+  layout.cuts = hi;
+  return layout;
+}
+
+std::size_t migrate(ParticleSet& owned, const SlabLayout& layout) {
+  const MPI_Comm comm = world();
+  int size = 1, rank = 0;
+  MPI_Comm_size(comm, &size);
+  MPI_Comm_rank(comm, &rank);
+  require(layout.cuts.size() + 1 == static_cast<std::size_t>(size), "layout.cuts",
+          static_cast<double>(layout.cuts.size()), "must hold world_size() - 1 cuts");
+  // Per destination: the records (x, y, z, s, m, birth) and the ids.
+  constexpr int kDoubles = 6;
+  const auto ranks = static_cast<std::size_t>(size);
+  std::vector<std::vector<double>> out(ranks);
+  std::vector<std::vector<std::int64_t>> out_ids(ranks);
+  std::vector<std::size_t> leaving;
+  for (std::size_t p = 0; p < owned.size(); ++p) {
+    const int r = layout.owner(owned.positions()[p]);
+    if (r == rank) continue;
+    const Vec3& y = owned.positions()[p];
+    auto& o = out[static_cast<std::size_t>(r)];
+    o.insert(o.end(), {y[0], y[1], y[2], owned.widths()[p], owned.masses()[p], owned.birth_times()[p]});
+    out_ids[static_cast<std::size_t>(r)].push_back(owned.ids()[p]);
+    leaving.push_back(p);
+  }
+  std::vector<int> send_n(ranks), recv_n(ranks);
+  for (std::size_t r = 0; r < ranks; ++r) send_n[r] = static_cast<int>(out_ids[r].size());
+  MPI_Alltoall(send_n.data(), 1, MPI_INT, recv_n.data(), 1, MPI_INT, comm);
+  std::vector<int> send_off(ranks, 0), recv_off(ranks, 0);
+  for (std::size_t r = 1; r < ranks; ++r) {
+    send_off[r] = send_off[r - 1] + send_n[r - 1];
+    recv_off[r] = recv_off[r - 1] + recv_n[r - 1];
+  }
+  const int n_in = recv_off.back() + recv_n.back();
+  std::vector<double> flat;
+  std::vector<std::int64_t> flat_ids;
+  for (std::size_t r = 0; r < ranks; ++r) {
+    flat.insert(flat.end(), out[r].begin(), out[r].end());
+    flat_ids.insert(flat_ids.end(), out_ids[r].begin(), out_ids[r].end());
+  }
+  std::vector<std::int64_t> in_ids(static_cast<std::size_t>(n_in));
+  MPI_Alltoallv(flat_ids.data(), send_n.data(), send_off.data(), MPI_INT64_T, in_ids.data(), recv_n.data(),
+                recv_off.data(), MPI_INT64_T, comm);
+  // The records: kDoubles per particle.
+  auto scaled = [](std::vector<int> v) {
+    for (int& c : v) c *= kDoubles;
+    return v;
+  };
+  const std::vector<int> send_d = scaled(send_n), send_doff = scaled(send_off);
+  const std::vector<int> recv_d = scaled(recv_n), recv_doff = scaled(recv_off);
+  std::vector<double> in(static_cast<std::size_t>(n_in) * kDoubles);
+  MPI_Alltoallv(flat.data(), send_d.data(), send_doff.data(), MPI_DOUBLE, in.data(), recv_d.data(),
+                recv_doff.data(), MPI_DOUBLE, comm);
+
+  owned.remove_indices(leaving);
+  for (std::size_t i = 0; i < in_ids.size(); ++i) {
+    const double* r = &in[i * kDoubles];
+    owned.add_with_id(in_ids[i], Vec3(r[0], r[1], r[2]), r[3], r[4], r[5]);
+  }
+  return leaving.size();
+}
+
+}  // namespace otfp
