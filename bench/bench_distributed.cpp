@@ -1,11 +1,11 @@
 // The functional and an implicit step over MPI ranks (otfp::mpi;
 // docs/distributed.md, "Figures"). Run under mpiexec, one thread per rank:
 //
-//   OMP_NUM_THREADS=1 mpiexec -n 2 build/bench/otfp_bench_distributed [n] [dim] [dt_factor]
+//   OMP_NUM_THREADS=1 mpiexec -n 2 build/bench/otfp_bench_distributed [n] [dim] [dt_factor] [slabs|bisection]
 //
 // Every rank draws the same cloud (n particles uniform in the unit ball,
 // widths of the papers' rule at beta dr^2 = 2), keeps its slab (equal counts
-// along x), and times: 20 evaluations of F and its gradient at fixed
+// along x) or its leaf of the recursive bisection, and times: 20 evaluations of F and its gradient at fixed
 // positions (the ghosts built once), then one implicit Euler step with TAO at
 // dt_factor x dt_explicit. Rank 0 prints the slowest rank's times and every
 // rank's ghosts and bytes.
@@ -41,6 +41,7 @@ int main(int argc, char** argv) {
   const std::size_t n = argc > 1 ? std::stoul(argv[1]) : 100000;
   const int dim = argc > 2 ? std::stoi(argv[2]) : 3;
   const double dt_factor = argc > 3 ? std::stod(argv[3]) : 1.0;
+  const bool bisection = argc > 4 && std::string(argv[4]) == "bisection";
   const int rank = world_rank(), size = world_size();
 
   DomainPtr ball = make_ball(dim, Vec3::Zero(), 1.0);
@@ -50,7 +51,14 @@ int main(int argc, char** argv) {
   Rng rng(2026);
   std::vector<Vec3> x_all(n);
   for (auto& y : x_all) y = ball->sample_interior(rng);
-  const std::vector<int> owner = partition_slabs(x_all, 0, size);
+  std::vector<int> owner = partition_slabs(x_all, 0, size);
+  if (bisection) {
+    std::vector<Vec3> share;  // any split of the cloud will do for the collective
+    for (std::size_t p = static_cast<std::size_t>(rank); p < n; p += static_cast<std::size_t>(size))
+      share.push_back(x_all[p]);
+    const BisectionLayout tree = balanced_bisection(share, dim);
+    for (std::size_t p = 0; p < n; ++p) owner[p] = tree.owner(x_all[p]);
+  }
   ParticleSet mine(dim);
   for (std::size_t p = 0; p < n; ++p)
     if (owner[p] == rank) mine.add(x_all[p], s, 1.0 / static_cast<double>(n));
@@ -91,9 +99,9 @@ int main(int argc, char** argv) {
   }
   MPI_Barrier(MPI_COMM_WORLD);
   if (rank == 0)
-    std::printf("n = %zu, %d-D, %d rank(s): F and gradient %.1f ms per evaluation (exchange and sums %.2f ms); "
+    std::printf("%s: n = %zu, %d-D, %d rank(s): F and gradient %.1f ms per evaluation (exchange and sums %.2f ms); "
                 "one step at %.3g x dt_explicit: %s, %d evaluations, %.3f s\n",
-                n, dim, size, 1e3 * per_eval, 1e3 * exchange, dt_factor, step.accepted ? "accepted" : "rejected",
+                bisection ? "bisection" : "slabs", n, dim, size, 1e3 * per_eval, 1e3 * exchange, dt_factor, step.accepted ? "accepted" : "rejected",
                 step.evaluations, step_seconds);
   return step.accepted ? 0 : 1;
 }

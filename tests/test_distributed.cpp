@@ -227,11 +227,11 @@ TEST(DistributedFunctional, PartitionSlabsBalancesCounts) {
 
 // ---------------------------------------------------------------- migration
 
-// Particles given to ranks at random move to balanced slabs: none is lost or
-// repeated, each lands on the rank of its slab with its width, mass, birth
-// time and id, the counts are equal to one, and F over the new layout is the
-// serial F.
-TEST(Decomposition, MigrationToBalancedSlabsKeepsEveryParticle) {
+// Particles given to ranks at random move to a balanced layout: none is lost
+// or repeated, each lands on the rank of its region with its width, mass,
+// birth time and id, the counts are equal to one particle per cut, and F
+// over the new layout is the serial F.
+void expect_migration_keeps_every_particle(bool bisection) {
   const Cloud c = ball_cloud(3, 2000, 31, true);
   Rng birth_rng(4);
   std::vector<double> birth(c.x.size());
@@ -242,8 +242,14 @@ TEST(Decomposition, MigrationToBalancedSlabsKeepsEveryParticle) {
     if (random_owner[p] == world_rank())
       mine_set.add_with_id(static_cast<ParticleId>(p), c.x[p], c.s[p], c.m[p], birth[p]);
 
-  const SlabLayout layout = balanced_slabs(mine_set.positions(), 0);
-  ASSERT_EQ(layout.cuts.size(), static_cast<std::size_t>(world_size() - 1));
+  SlabLayout slabs;
+  BisectionLayout tree;
+  if (bisection)
+    tree = balanced_bisection(mine_set.positions(), 3);
+  else
+    slabs = balanced_slabs(mine_set.positions(), 0);
+  const Layout& layout = bisection ? static_cast<const Layout&>(tree) : slabs;
+  ASSERT_EQ(layout.ranks(), world_size());
   const std::size_t sent = migrate(mine_set, layout);
   if (world_size() == 1) {
     EXPECT_EQ(sent, 0u);
@@ -254,7 +260,7 @@ TEST(Decomposition, MigrationToBalancedSlabsKeepsEveryParticle) {
   MPI_Allreduce(MPI_IN_PLACE, &hi, 1, MPI_INT, MPI_MAX, MPI_COMM_WORLD);
   MPI_Allreduce(MPI_IN_PLACE, &total, 1, MPI_INT, MPI_SUM, MPI_COMM_WORLD);
   EXPECT_EQ(total, static_cast<int>(c.x.size()));
-  EXPECT_LE(hi - lo, 1);
+  EXPECT_LE(hi - lo, bisection ? 2 : 1);  // bisection: one particle per level of cuts
   // Every id once over the ranks.
   std::vector<int> seen(c.x.size(), 0);
   for (std::size_t i = 0; i < mine_set.size(); ++i) {
@@ -277,6 +283,43 @@ TEST(Decomposition, MigrationToBalancedSlabsKeepsEveryParticle) {
   const double fs = serial.evaluate(c.x, c.s, nullptr).total();
   const double fd = dist.evaluate(mine_set.positions(), mine_set.widths(), nullptr).total();
   EXPECT_LT(std::abs(fd - fs), 1e-12 * std::abs(fs));
+}
+
+TEST(Decomposition, MigrationToBalancedSlabsKeepsEveryParticle) { expect_migration_keeps_every_particle(false); }
+TEST(Decomposition, MigrationToABalancedBisectionKeepsEveryParticle) { expect_migration_keeps_every_particle(true); }
+
+// The bisection cuts the longest side of each node's box: a cloud twice as
+// long in y as in x and z is cut across y first; the leaves' shares are equal.
+TEST(Decomposition, BisectionCutsTheLongestSideIntoEqualShares) {
+  Rng rng(12);
+  std::vector<Vec3> all(3000);
+  for (auto& y : all) y = Vec3(rng.uniform(), 2.0 * rng.uniform(), rng.uniform());
+  std::vector<Vec3> mine_x;
+  for (std::size_t p = 0; p < all.size(); ++p)
+    if (static_cast<int>(p % static_cast<std::size_t>(world_size())) == world_rank()) mine_x.push_back(all[p]);
+  const BisectionLayout tree = balanced_bisection(mine_x, 3);
+  EXPECT_EQ(tree.ranks(), world_size());
+  if (world_size() > 1) {
+    EXPECT_EQ(tree.nodes[0].axis, 1);
+  }
+  std::vector<int> count(static_cast<std::size_t>(world_size()), 0);
+  for (const Vec3& y : all) ++count[static_cast<std::size_t>(tree.owner(y))];
+  for (int r = 0; r < world_size(); ++r)
+    EXPECT_NEAR(count[static_cast<std::size_t>(r)], static_cast<double>(all.size()) / world_size(), 2.0) << r;
+}
+
+TEST(Decomposition, BisectionOwnerDescendsTheTree) {
+  BisectionLayout tree;
+  tree.nodes.resize(5);
+  tree.nodes[0] = {0, 0.5, 1, 2, -1};   // x < 0.5: node 1 (rank 0); else node 2
+  tree.nodes[1] = {0, 0.0, -1, -1, 0};
+  tree.nodes[2] = {2, 0.25, 3, 4, -1};  // z < 0.25: rank 1; else rank 2
+  tree.nodes[3] = {0, 0.0, -1, -1, 1};
+  tree.nodes[4] = {0, 0.0, -1, -1, 2};
+  EXPECT_EQ(tree.ranks(), 3);
+  EXPECT_EQ(tree.owner(Vec3(0.1, 9.0, 9.0)), 0);
+  EXPECT_EQ(tree.owner(Vec3(0.5, 0.0, 0.0)), 1);
+  EXPECT_EQ(tree.owner(Vec3(0.9, 0.0, 0.25)), 2);
 }
 
 TEST(Decomposition, SlabOwnerFollowsTheCuts) {

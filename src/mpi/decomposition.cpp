@@ -89,13 +89,120 @@ SlabLayout balanced_slabs(const std::vector<Vec3>& owned_x, int axis) {
   return layout;
 }
 
-std::size_t migrate(ParticleSet& owned, const SlabLayout& layout) {
+int BisectionLayout::owner(const Vec3& x) const {
+  if (nodes.empty()) return 0;
+  std::size_t i = 0;
+  while (nodes[i].rank < 0) i = static_cast<std::size_t>(x[nodes[i].axis] < nodes[i].cut ? nodes[i].below : nodes[i].above);
+  return nodes[i].rank;
+}
+
+int BisectionLayout::ranks() const {
+  if (nodes.empty()) return 1;
+  return static_cast<int>(std::count_if(nodes.begin(), nodes.end(), [](const Node& n) { return n.rank >= 0; }));
+}
+
+BisectionLayout balanced_bisection(const std::vector<Vec3>& owned_x, int dim) {
+  require(dim >= 1 && dim <= 3, "dim", dim, "must be 1, 2 or 3");
+  const MPI_Comm comm = world();
+  int size = 1;
+  MPI_Comm_size(comm, &size);
+  BisectionLayout layout;
+  layout.nodes.emplace_back();
+  struct Pending {
+    int node, r0, r1;
+  };
+  std::vector<Pending> level = {{0, 0, size}};
+  std::vector<int> where(owned_x.size(), 0);  // each particle's node at the current level
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  while (!level.empty()) {
+    std::vector<Pending> split;
+    for (const Pending& p : level) {
+      if (p.r1 - p.r0 == 1)
+        layout.nodes[static_cast<std::size_t>(p.node)].rank = p.r0;
+      else
+        split.push_back(p);
+    }
+    if (split.empty()) break;
+    // Every node of this level at once: its particles' box and count, then
+    // the cut across its longest side, by bisection on the counts below.
+    const std::size_t m = split.size();
+    std::vector<int> slot(layout.nodes.size(), -1);
+    for (std::size_t k = 0; k < m; ++k) slot[static_cast<std::size_t>(split[k].node)] = static_cast<int>(k);
+    std::vector<double> ext(6 * m, kInf);  // per node: min[3], -max[3]
+    std::vector<long long> count(m, 0);
+    for (std::size_t p = 0; p < owned_x.size(); ++p) {
+      const int k = slot[static_cast<std::size_t>(where[p])];
+      if (k < 0) continue;
+      for (int a = 0; a < dim; ++a) {
+        ext[6 * static_cast<std::size_t>(k) + static_cast<std::size_t>(a)] =
+            std::min(ext[6 * static_cast<std::size_t>(k) + static_cast<std::size_t>(a)], owned_x[p][a]);
+        ext[6 * static_cast<std::size_t>(k) + 3 + static_cast<std::size_t>(a)] =
+            std::min(ext[6 * static_cast<std::size_t>(k) + 3 + static_cast<std::size_t>(a)], -owned_x[p][a]);
+      }
+      ++count[static_cast<std::size_t>(k)];
+    }
+    MPI_Allreduce(MPI_IN_PLACE, ext.data(), static_cast<int>(ext.size()), MPI_DOUBLE, MPI_MIN, comm);
+    MPI_Allreduce(MPI_IN_PLACE, count.data(), static_cast<int>(m), MPI_LONG_LONG, MPI_SUM, comm);
+    std::vector<int> axis(m, 0);
+    std::vector<double> lo(m, 0.0), hi(m, 0.0), mid(m);
+    std::vector<long long> target(m), below(m);
+    for (std::size_t k = 0; k < m; ++k) {
+      double widest = -1.0;
+      for (int a = 0; a < dim; ++a) {
+        const double extent = -ext[6 * k + 3 + static_cast<std::size_t>(a)] - ext[6 * k + static_cast<std::size_t>(a)];
+        if (extent > widest) {
+          widest = extent;
+          axis[k] = a;
+        }
+      }
+      if (count[k] > 0) {
+        lo[k] = ext[6 * k + static_cast<std::size_t>(axis[k])];
+        hi[k] = -ext[6 * k + 3 + static_cast<std::size_t>(axis[k])];
+      }
+      const int ranks = split[k].r1 - split[k].r0;
+      target[k] = count[k] * (ranks / 2) / ranks;
+    }
+    for (int it = 0; it < 64; ++it) {
+      for (std::size_t k = 0; k < m; ++k) mid[k] = 0.5 * (lo[k] + hi[k]);
+      std::fill(below.begin(), below.end(), 0LL);
+      for (std::size_t p = 0; p < owned_x.size(); ++p) {
+        const int k = slot[static_cast<std::size_t>(where[p])];
+        if (k >= 0 && owned_x[p][axis[static_cast<std::size_t>(k)]] < mid[static_cast<std::size_t>(k)])
+          ++below[static_cast<std::size_t>(k)];
+      }
+      MPI_Allreduce(MPI_IN_PLACE, below.data(), static_cast<int>(m), MPI_LONG_LONG, MPI_SUM, comm);
+      for (std::size_t k = 0; k < m; ++k) (below[k] >= target[k] ? hi[k] : lo[k]) = mid[k];
+    }
+    std::vector<Pending> next;
+    for (std::size_t k = 0; k < m; ++k) {
+      const Pending& p = split[k];
+      const int half = (p.r1 - p.r0) / 2;
+      const int below_node = static_cast<int>(layout.nodes.size());
+      layout.nodes.emplace_back();
+      layout.nodes.emplace_back();
+      BisectionLayout::Node& n = layout.nodes[static_cast<std::size_t>(p.node)];
+      n.axis = axis[k];
+      n.cut = hi[k];
+      n.below = below_node;
+      n.above = below_node + 1;
+      next.push_back({below_node, p.r0, p.r0 + half});
+      next.push_back({below_node + 1, p.r0 + half, p.r1});
+    }
+    for (std::size_t p = 0; p < owned_x.size(); ++p) {
+      const BisectionLayout::Node& n = layout.nodes[static_cast<std::size_t>(where[p])];
+      if (n.rank < 0 && n.below >= 0) where[p] = owned_x[p][n.axis] < n.cut ? n.below : n.above;
+    }
+    level = std::move(next);
+  }
+  return layout;
+}
+
+std::size_t migrate(ParticleSet& owned, const Layout& layout) {
   const MPI_Comm comm = world();
   int size = 1, rank = 0;
   MPI_Comm_size(comm, &size);
   MPI_Comm_rank(comm, &rank);
-  require(layout.cuts.size() + 1 == static_cast<std::size_t>(size), "layout.cuts",
-          static_cast<double>(layout.cuts.size()), "must hold world_size() - 1 cuts");
+  require(layout.ranks() == size, "layout.ranks()", layout.ranks(), "must equal world_size()");
   // Per destination: the records (x, y, z, s, m, birth) and the ids.
   constexpr int kDoubles = 6;
   const auto ranks = static_cast<std::size_t>(size);
