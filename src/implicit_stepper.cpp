@@ -204,33 +204,10 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
   summary.parts_before = before;
   summary.f_before = f0;
 
-  bool ok = start_ok && ms.success;
-  if (start_ok && !ms.success && ms.reason == TerminationReason::LineSearchFailure &&
-      ms.final_stopping_measure <= std::max({ms.gradient_tolerance, floor_measure, stall_measure})) {
-    ok = true;
-    summary.message = "converged to the round-off floor of F";
-  }
   std::vector<Vec3> x_new = x;
   std::vector<double> s_new = s;
-  if (ok) {
-    double f1 = 0.0;
-    objective.unpack(z.data(), x_new, s_new);
-    ok = objective.evaluate(z.data(), &f1, nullptr);
-    summary.parts_after = objective.parts();
-    summary.f_after = f1;
-    // Energy inequality F(x^{k+1}) <= F(x^k) (+ round-off). Euler: F(x^k) = E(x^k),
-    // so E(x^{k+1}) + W^2/(2 dt) <= E(x^k). BDF2 (d_k = x^k - x^{k-1}, c = w^2/(1+2w)):
-    // E(x^{k+1}) + a0 m/(2 dt) |d_{k+1} - c d_k|^2 <= E(x^k) + a0 m/(2 dt) c^2 |d_k|^2.
-    const double slack =
-        options_.energy_tolerance * (std::abs(f0) + std::abs(before.entropy) + std::abs(before.barrier) + 1e-300);
-    if (ok && f1 > f0 + slack) {
-      ok = false;
-      summary.message = "energy increased: F_after - F_before = " + std::to_string(f1 - f0);
-    }
-  } else {
-    summary.message = start_ok ? "solver: " + to_string(ms.reason) + (ms.message.empty() ? "" : " (" + ms.message + ")")
-                               : "non-finite F at the start of the step";
-  }
+  const bool ok = detail::accept_solve(objective, z, start_ok, ms, tol, f0, before, options_.energy_tolerance, x_new,
+                                       s_new, summary);
   summary.list_builds += functional_.list().build_count() - builds_before;
   summary.list_seconds += functional_.list().build_seconds() - list_seconds_before;
   summary.pair_evaluations += functional_.entropy().pair_evaluations() - pairs_before;

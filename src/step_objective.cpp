@@ -71,6 +71,36 @@ StepTolerances step_tolerances(const ImplicitOptions& o, double dt, double s_min
   return t;
 }
 
+bool accept_solve(StepObjective& objective, const std::vector<double>& z, bool start_ok, const MinimizerSummary& ms,
+                  const StepTolerances& tol, double f0, const FunctionalParts& before, double energy_tolerance,
+                  std::vector<Vec3>& x_new, std::vector<double>& s_new, StepSummary& summary) {
+  bool ok = start_ok && ms.success;
+  if (start_ok && !ms.success && ms.reason == TerminationReason::LineSearchFailure &&
+      ms.final_stopping_measure <= std::max({ms.gradient_tolerance, tol.floor_measure, tol.stall_measure})) {
+    ok = true;
+    summary.message = "converged to the round-off floor of F";
+  }
+  if (!ok) {
+    summary.message = start_ok ? "solver: " + to_string(ms.reason) + (ms.message.empty() ? "" : " (" + ms.message + ")")
+                               : "non-finite F at the start of the step";
+    return false;
+  }
+  double f1 = 0.0;
+  objective.unpack(z.data(), x_new, s_new);
+  ok = objective.evaluate(z.data(), &f1, nullptr);
+  summary.parts_after = objective.parts();
+  summary.f_after = f1;
+  // Energy inequality F(x^{k+1}) <= F(x^k) (+ round-off). Euler: F(x^k) = E(x^k),
+  // so E(x^{k+1}) + W^2/(2 dt) <= E(x^k). BDF2 (d_k = x^k - x^{k-1}, c = w^2/(1+2w)):
+  // E(x^{k+1}) + a0 m/(2 dt) |d_{k+1} - c d_k|^2 <= E(x^k) + a0 m/(2 dt) c^2 |d_k|^2.
+  const double slack = energy_tolerance * (std::abs(f0) + std::abs(before.entropy) + std::abs(before.barrier) + 1e-300);
+  if (ok && f1 > f0 + slack) {
+    ok = false;
+    summary.message = "energy increased: F_after - F_before = " + std::to_string(f1 - f0);
+  }
+  return ok;
+}
+
 StepObjective::StepObjective(Functional& f, const ExternalPotential& ext, const std::vector<Vec3>& x_anchor,
                              const std::vector<double>& s_anchor, const std::vector<double>& m, double dt,
                              bool widths, const std::vector<double>& weights, double s_max)

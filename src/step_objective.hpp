@@ -9,6 +9,7 @@
 #include "otfp/functional.hpp"
 #include "otfp/implicit_stepper.hpp"
 #include "otfp/minimizer.hpp"
+#include "otfp/step_summary.hpp"
 
 namespace otfp::detail {
 
@@ -113,6 +114,16 @@ class StepObjective final : public Objective {
   Gradient g_;
   FunctionalParts parts_;
 };
+
+// The verdict on one step's solve, the same for the serial and the
+// distributed step: accepted when the solver converged, or when it stalled
+// (a failed line search) at F's round-off floor; then (x_new, s_new) is the
+// result, and the energy inequality F(x^{k+1}) <= F(x^k) (+ energy_tolerance)
+// must hold. Fills the summary's F after, parts and message; (x_new, s_new)
+// enter as the start of the step.
+bool accept_solve(StepObjective& objective, const std::vector<double>& z, bool start_ok, const MinimizerSummary& ms,
+                  const StepTolerances& tol, double f0, const FunctionalParts& before, double energy_tolerance,
+                  std::vector<Vec3>& x_new, std::vector<double>& s_new, StepSummary& summary);
 
 // StepObjective with its own copies of the state it refers to (step_problem()).
 class OwnedStepObjective final : public Objective {

@@ -144,31 +144,10 @@ StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
   summary.parts_before = before;
   summary.f_before = summary.f_start = f0;
 
-  bool ok = start_ok && ms.success;
-  if (start_ok && !ms.success && ms.reason == TerminationReason::LineSearchFailure &&
-      ms.final_stopping_measure <= std::max({ms.gradient_tolerance, tol.floor_measure, tol.stall_measure})) {
-    ok = true;
-    summary.message = "converged to the round-off floor of F";
-  }
   std::vector<Vec3> x_new = x;
   std::vector<double> s_new = s;
-  if (ok) {
-    double f1 = 0.0;
-    objective.unpack(z.data(), x_new, s_new);
-    ok = objective.evaluate(z.data(), &f1, nullptr);
-    summary.parts_after = objective.parts();
-    summary.f_after = f1;
-    // The energy inequality F(x^{k+1}) <= F(x^k) (+ round-off), as the serial step.
-    const double slack =
-        o.energy_tolerance * (std::abs(f0) + std::abs(before.entropy) + std::abs(before.barrier) + 1e-300);
-    if (ok && f1 > f0 + slack) {
-      ok = false;
-      summary.message = "energy increased: F_after - F_before = " + std::to_string(f1 - f0);
-    }
-  } else if (summary.message.empty()) {
-    summary.message = start_ok ? "solver: " + to_string(ms.reason) + (ms.message.empty() ? "" : " (" + ms.message + ")")
-                               : "non-finite F at the start of the step";
-  }
+  const bool ok = detail::accept_solve(objective, z, start_ok, ms, tol, f0, before, o.energy_tolerance, x_new, s_new,
+                                       summary);
   summary.list_builds = d.functional.exchange().rebuilds - builds_before;
   if (ok) {
     owned.positions() = std::move(x_new);
