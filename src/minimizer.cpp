@@ -109,9 +109,11 @@ TrackedObjective::TrackedObjective(Objective& objective, int max_evaluations)
     : objective_(objective), n_(objective.num_variables()), max_evaluations_(max_evaluations) {}
 
 bool TrackedObjective::cached(const double* z, double* value, double* gradient) const {
-  if (!cache_valid_ || (gradient != nullptr && !cache_has_gradient_)) return false;
   // Bitwise equality: the backends re-request exactly the same point.
-  if (n_ > 0 && std::memcmp(z, cache_z_.data(), n_ * sizeof(double)) != 0) return false;
+  bool hit = cache_valid_ && !(gradient != nullptr && !cache_has_gradient_) &&
+             !(n_ > 0 && std::memcmp(z, cache_z_.data(), n_ * sizeof(double)) != 0);
+  if (all_) hit = all_(hit);
+  if (!hit) return false;
   *value = cache_value_;
   if (gradient != nullptr) std::copy(cache_g_.begin(), cache_g_.end(), gradient);
   return true;
@@ -181,20 +183,22 @@ MinimizerSummary minimize(Objective& objective, std::vector<double>& z, const Mi
     case Backend::Tao: runner = tao_runner.load(); break;
   }
   require(runner != nullptr, "solver.backend", to_string(options.backend), "not available in this program");
-  return detail::minimize_with(objective, z, options, runner, false);
+  return detail::minimize_with(objective, z, options, runner);
 }
 
 namespace detail {
 
 MinimizerSummary minimize_with(Objective& objective, std::vector<double>& z, const MinimizerOptions& options_in,
-                               BackendRunner runner, bool collective) {
+                               BackendRunner runner, std::function<bool(bool)> collective) {
   MinimizerOptions options = options_in;  // the relative rule sets gradient_tolerance after the start point
   const std::size_t n = objective.num_variables();
+  const bool shared = static_cast<bool>(collective);
   require(z.size() == n, "z.size()", static_cast<double>(z.size()),
           "must equal objective.num_variables() = " + std::to_string(n));
 
   const auto t0 = Clock::now();
   detail::TrackedObjective tracked(objective, options.max_evaluations);
+  if (shared) tracked.set_collective(std::move(collective));
   MinimizerSummary summary;
   auto finish = [&]() {
     summary.success = summary.reason == TerminationReason::Converged ||
@@ -206,7 +210,10 @@ MinimizerSummary minimize_with(Objective& objective, std::vector<double>& z, con
   };
 
   detail::StartPoint start;
-  start.gradient.assign(n, 0.0);
+  // One element at least: a null gradient pointer means "value only", and a
+  // process with no unknowns of a shared solve still wants the gradient
+  // (its collective parts).
+  start.gradient.assign(std::max<std::size_t>(n, 1), 0.0);
   const auto status = tracked.evaluate(z.data(), &start.value, start.gradient.data());
   tracked.rethrow_if_failed();
   if (status != detail::TrackedObjective::Status::Ok) {
@@ -226,7 +233,7 @@ MinimizerSummary minimize_with(Objective& objective, std::vector<double>& z, con
   summary.gradient_tolerance = options.gradient_tolerance;
 
   // (A rank with no unknowns still takes part in a collective solve.)
-  if (start.measure <= std::max(options.gradient_tolerance, options.start_tolerance) || (n == 0 && !collective)) {
+  if (start.measure <= std::max(options.gradient_tolerance, options.start_tolerance) || (n == 0 && !shared)) {
     summary.reason = TerminationReason::Converged;
     summary.final_value = start.value;
     summary.final_stopping_measure = start.measure;
@@ -256,8 +263,14 @@ MinimizerSummary minimize_with(Objective& objective, std::vector<double>& z, con
   }
   summary.reason = r.reason;
   // The common rule decides whatever the backend said: a returned point that
-  // meets the tolerance is converged.
-  if (r.final_measure <= options.gradient_tolerance) summary.reason = TerminationReason::Converged;
+  // meets the tolerance is converged, and one that does not is not.
+  if (r.final_measure <= options.gradient_tolerance) {
+    summary.reason = TerminationReason::Converged;
+  } else if (summary.reason == TerminationReason::Converged) {
+    summary.reason = TerminationReason::Failure;
+    r.message += " (the backend stopped as converged where the stopping measure is " +
+                 std::to_string(r.final_measure) + " > " + std::to_string(options.gradient_tolerance) + ")";
+  }
   summary.iterations = r.iterations;
   summary.final_value = r.final_value;
   summary.final_stopping_measure = r.final_measure;

@@ -3,6 +3,7 @@
 // or PETSc types here either: each adapter includes its own library.
 #include <cstddef>
 #include <exception>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -20,6 +21,12 @@ class TrackedObjective {
   enum class Status { Ok, NonFinite, Capped, Error };
 
   TrackedObjective(Objective& objective, int max_evaluations);
+
+  // A solve shared by several processes (minimize_with, collective): whether
+  // a request is answered from the cache must be decided by all of them, or
+  // one would skip the collective evaluation the others enter. `all(v)` is
+  // true iff v is true on every process.
+  void set_collective(std::function<bool(bool)> all) { all_ = std::move(all); }
 
   std::size_t size() const { return n_; }
 
@@ -56,6 +63,7 @@ class TrackedObjective {
   bool refused_ = false;
   double objective_seconds_ = 0.0;
   std::exception_ptr error_;
+  std::function<bool(bool)> all_;
   // Last point with a finite evaluation.
   bool cache_valid_ = false;
   bool cache_has_gradient_ = false;
@@ -85,12 +93,14 @@ using BackendRunner = BackendResult (*)(TrackedObjective&, std::vector<double>&,
 // The optional backends (TAO) register their runner here; nullptr unregisters.
 void set_backend_runner(Backend backend, BackendRunner runner);
 
-// minimize() with a given runner. collective: the objective is one process's
-// share of a problem solved together by several (its value and stopping
-// measure are already the global ones): a process with no unknowns still
-// runs the backend. minimize() validates the options before; this does not.
+// minimize() with a given runner. collective (not null): the objective is
+// one process's share of a problem solved together by several (its value and
+// stopping measure are already the global ones), and collective(v) is true
+// iff v is on every process: the cache is consulted only when all agree, and
+// a process with no unknowns still runs the backend. minimize() validates
+// the options before; this does not.
 MinimizerSummary minimize_with(Objective& objective, std::vector<double>& z, const MinimizerOptions& options,
-                               BackendRunner runner, bool collective);
+                               BackendRunner runner, std::function<bool(bool)> collective = {});
 
 BackendResult run_ceres(TrackedObjective& objective, std::vector<double>& z, const StartPoint& start,
                         const MinimizerOptions& options);

@@ -473,6 +473,70 @@ TEST(DistributedImplicitStepper, StepsWithMigrationMatchTheSerialRun) {
   EXPECT_LT(dx, 1e-8);
 }
 
+// Ranks with no particles, and a rank whose only particle is too far from
+// the others to move (its gradient is exactly zero: its unknowns do not
+// change between evaluations), still take part in every collective: the
+// first hung in the first version (a null gradient pointer meant "value
+// only" on the empty rank), the second deadlocked on the evaluation cache
+// (found by review). Both now end as the serial step does.
+TEST(DistributedImplicitStepper, EmptyAndStillRanksTakePartInTheSolve) {
+  register_tao_backend();
+  const int dim = 2;
+  Cloud c = ball_cloud(dim, 300, 51, false);
+  for (auto& y : c.x) y *= 0.5;
+  // One far-away particle, its kernel beyond every cut-off.
+  c.x.push_back(Vec3(50.0, 50.0, 0.0));
+  c.s.push_back(c.s[0]);
+  c.m.push_back(c.m[0]);
+  const std::size_t far = c.x.size() - 1;
+  for (int layout = 0; layout < 2; ++layout) {
+    SCOPED_TRACE(layout == 0 ? "everything on rank 0" : "the far particle alone on the last rank");
+    std::vector<int> owner(c.x.size(), 0);
+    if (layout == 1) owner[far] = world_size() - 1;
+    ParticleSet serial(dim), mine_set(dim);
+    std::vector<std::size_t> global;
+    for (std::size_t p = 0; p < c.x.size(); ++p) {
+      serial.add(c.x[p], c.s[p], c.m[p]);
+      if (owner[p] == world_rank()) {
+        mine_set.add(c.x[p], c.s[p], c.m[p]);
+        global.push_back(p);
+      }
+    }
+    const double dt = 2.0 * c.s[0] * c.s[0];
+    ImplicitStepper one(dim, tao_step_options(WidthMode::Fixed));
+    DistributedImplicitStepper many(dim, tao_step_options(WidthMode::Fixed));
+    const StepSummary a = one.step(serial, dt);
+    const StepSummary b = many.step(mine_set, dt);
+    EXPECT_TRUE(a.accepted) << a.message;
+    EXPECT_TRUE(b.accepted) << b.message;
+    EXPECT_EQ(a.evaluations, b.evaluations);
+    double dx = 0.0;
+    for (std::size_t i = 0; i < global.size(); ++i)
+      dx = std::max(dx, (mine_set.positions()[i] - serial.positions()[global[i]]).norm() / c.s[0]);
+    MPI_Allreduce(MPI_IN_PLACE, &dx, 1, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD);
+    EXPECT_LT(dx, 1e-9);
+    if (owner[far] == world_rank()) {
+      EXPECT_EQ(mine_set.positions()[mine_set.size() - 1], c.x[far]) << "the far particle has nothing to move it";
+    }
+  }
+}
+
+// A width above the bound on one rank only: every rank throws, none waits.
+TEST(DistributedImplicitStepper, ARefusalOnOneRankIsEveryRanks) {
+  register_tao_backend();
+  ImplicitOptions o = tao_step_options(WidthMode::PerParticle);
+  o.max_width_factor = 2.0;
+  o.nominal_width = 0.1;
+  DistributedImplicitStepper many(2, o);
+  ParticleSet mine_set(2);
+  Rng rng(static_cast<std::uint64_t>(world_rank()) + 3);
+  for (int i = 0; i < 20; ++i) mine_set.add(Vec3(rng.uniform(), rng.uniform(), 0.0), 0.1, 0.05);
+  if (world_rank() == world_size() - 1) mine_set.widths()[0] = 0.5;  // above 2 x 0.1
+  EXPECT_THROW(many.step(mine_set, 1e-3), InvalidArgument);
+  mine_set.widths()[0] = 0.1;
+  EXPECT_TRUE(many.step(mine_set, 1e-3).accepted);
+}
+
 TEST(DistributedImplicitStepper, RefusesWhatItDoesNotDoYet) {
   auto refused = [](ImplicitOptions o, const std::string& field) {
     try {

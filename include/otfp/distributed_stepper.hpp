@@ -8,9 +8,15 @@
 // same problem with the same optimiser.
 //
 // Today: implicit Euler without predictor, fixed or per-particle widths,
-// either stopping norm, a Barrier and periodic axes. Not yet: BDF2, the
-// predictor, the error estimate, halving of a failed step, image blobs, an
-// external potential (ImplicitOptions naming them are refused).
+// either stopping norm, a Barrier and periodic axes. Refused (InvalidArgument
+// naming the field): a backend other than TAO, BDF2, a predictor. Not yet,
+// and ignored: halving of a failed step (max_halvings: a failed step is
+// reported, not retried), the error estimate, sort_particles; there is no
+// external potential and no image blobs.
+//
+// One distributed step (or functional evaluation) per process at a time:
+// two threads of one process running collectives on the same world would
+// interleave them differently on different ranks.
 #include <memory>
 
 #include "otfp/distributed_functional.hpp"
@@ -30,6 +36,10 @@ class DistributedImplicitStepper {
   // them (and their widths) by one step; on a failed solve (the same verdict
   // on every rank) they are left as they were and summary.accepted is false.
   // The summary's F, measures and counts are global; its times are this rank's.
+  // Particles one rank refuses (a width above the bound) make every rank
+  // throw InvalidArgument before any work; an error inside the solve on one
+  // rank only (an exception in its share of F) aborts the world (MPI_Abort)
+  // with the reason on stderr, as the other ranks wait in a collective.
   StepSummary step(ParticleSet& owned, double dt);
 
   const ExchangeStats& exchange() const;

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 #include <mutex>
@@ -38,8 +39,9 @@ int SlabLayout::owner(const Vec3& x) const {
 
 namespace {
 
+// The world, started if need be. The caller holds petsc_mutex() for its MPI
+// calls (MPI_THREAD_SERIALIZED).
 MPI_Comm world() {
-  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   detail::ensure_petsc();
   return PETSC_COMM_WORLD;
 }
@@ -48,6 +50,7 @@ MPI_Comm world() {
 
 SlabLayout balanced_slabs(const std::vector<Vec3>& owned_x, int axis) {
   require(axis >= 0 && axis < 3, "axis", axis, "must be 0, 1 or 2");
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   const MPI_Comm comm = world();
   int size = 1;
   MPI_Comm_size(comm, &size);
@@ -103,6 +106,7 @@ int BisectionLayout::ranks() const {
 
 BisectionLayout balanced_bisection(const std::vector<Vec3>& owned_x, int dim) {
   require(dim >= 1 && dim <= 3, "dim", dim, "must be 1, 2 or 3");
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   const MPI_Comm comm = world();
   int size = 1;
   MPI_Comm_size(comm, &size);
@@ -198,6 +202,7 @@ BisectionLayout balanced_bisection(const std::vector<Vec3>& owned_x, int dim) {
 }
 
 std::size_t migrate(ParticleSet& owned, const Layout& layout) {
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   const MPI_Comm comm = world();
   int size = 1, rank = 0;
   MPI_Comm_size(comm, &size);
@@ -246,6 +251,26 @@ std::size_t migrate(ParticleSet& owned, const Layout& layout) {
   std::vector<double> in(static_cast<std::size_t>(n_in) * kDoubles);
   MPI_Alltoallv(flat.data(), send_d.data(), send_doff.data(), MPI_DOUBLE, in.data(), recv_d.data(),
                 recv_doff.data(), MPI_DOUBLE, comm);
+
+  // A repeated id (ids not unique over the ranks) is refused on every rank
+  // before anything changes, so that no rank goes on alone.
+  std::vector<std::int64_t> arriving(in_ids);
+  std::sort(arriving.begin(), arriving.end());
+  int repeated = std::adjacent_find(arriving.begin(), arriving.end()) != arriving.end() ? 1 : 0;
+  std::vector<bool> leaves(owned.size(), false);
+  for (std::size_t p : leaving) leaves[p] = true;
+  std::int64_t example = arriving.empty() ? -1 : arriving.front();
+  for (std::int64_t id : in_ids) {
+    const std::ptrdiff_t here = owned.index_of(id);
+    if (here >= 0 && !leaves[static_cast<std::size_t>(here)]) {
+      repeated = 1;
+      example = id;
+    }
+  }
+  int any_repeated = repeated;
+  MPI_Allreduce(MPI_IN_PLACE, &any_repeated, 1, MPI_INT, MPI_MAX, comm);
+  require(any_repeated == 0, "particle id", repeated ? static_cast<double>(example) : -1.0,
+          "is held by two ranks: ids must be unique over the ranks (add_with_id); nothing was moved");
 
   owned.remove_indices(leaving);
   for (std::size_t i = 0; i < in_ids.size(); ++i) {

@@ -100,7 +100,11 @@ struct DistributedFunctional::Impl {
         list(o.neighbor) {}
 
   ~Impl() {
+    // A functional that outlives PETSc (a static one, destroyed after the
+    // atexit hook finalised PETSc and MPI) has nothing left to free.
     const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+    PetscBool finalized = PETSC_TRUE;
+    if (PetscFinalized(&finalized) != 0 || finalized) return;
     if (sf != nullptr) PetscSFDestroy(&sf);
     if (vec3_type != MPI_DATATYPE_NULL) MPI_Type_free(&vec3_type);
   }

@@ -15,6 +15,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <exception>
+#include <memory>
 #include <limits>
 #include <mutex>
 #include <string>
@@ -104,7 +106,22 @@ StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
   d.functional.set_reference(x, s, m);
   const double s_max = o.max_width_factor > 0.0 ? o.max_width_factor * o.nominal_width : 0.0;
   const ExternalPotential none;
-  detail::StepObjective objective(d.step_functional(), none, x, s, m, dt, widths, {}, s_max);
+  // The objective checks this rank's particles (a width above the bound, say)
+  // and may refuse them: all ranks learn of it before any collective, and
+  // all throw (this rank its own message).
+  std::unique_ptr<detail::StepObjective> made;
+  std::exception_ptr refused;
+  try {
+    made = std::make_unique<detail::StepObjective>(d.step_functional(), none, x, s, m, dt, widths,
+                                                   std::vector<double>{}, s_max);
+  } catch (...) {
+    refused = std::current_exception();
+  }
+  int any_refused = refused ? 1 : 0;
+  MPI_Allreduce(MPI_IN_PLACE, &any_refused, 1, MPI_INT, MPI_MAX, d.comm);
+  if (refused) std::rethrow_exception(refused);
+  require(any_refused == 0, "particles", 0.0, "refused by another rank (its error names the field)");
+  detail::StepObjective& objective = *made;
   if (o.stopping_norm == StoppingNorm::Energy) objective.set_max_norm_factor(o.max_norm_factor);
   std::vector<double> z(objective.num_variables());
   objective.pack(x, s, z.data());
@@ -134,7 +151,7 @@ StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
   mo.validate();
 
   MinimizerSummary ms;
-  if (start_ok) ms = detail::minimize_with(objective, z, mo, detail::run_tao_world, true);
+  if (start_ok) ms = detail::minimize_with(objective, z, mo, detail::run_tao_world, d.step_functional().all);
   summary.reason = start_ok ? ms.reason : TerminationReason::NonFinite;
   summary.iterations = ms.iterations;
   summary.evaluations = ms.evaluations;

@@ -19,6 +19,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <mutex>
 #include <stdexcept>
@@ -65,6 +66,9 @@ struct TaoRun {
   double last_value = 0.0;  // f at the previous accepted iterate (function_tolerance)
 };
 
+// Stands for the gradient of a rank with no unknowns (never read).
+const double kEmptyGradient = 0.0;
+
 // A nonzero return unwinds TaoSolve; run.stop says why.
 constexpr PetscErrorCode kStopCode = PETSC_ERR_USER;
 
@@ -80,23 +84,30 @@ PetscErrorCode objective_and_gradient(Tao /*tao*/, Vec x, PetscReal* f, Vec g, v
     return ierr;
   }
   const std::size_t n = run.objective->size();
+  // A rank with no unknowns of a shared solve may see null arrays; a null
+  // gradient would mean "value only" to the objective.
+  double empty = 0.0;
+  double* grad = n > 0 ? gg : &empty;
   double value = 0.0;
-  const Status st = run.objective->evaluate(xx, &value, gg);
+  const Status st = run.objective->evaluate(xx, &value, grad);
   if (st == Status::Ok) {
     *f = value;
     if (value < run.best_value) {
       run.best_value = value;
       run.best_x.assign(xx, xx + n);
-      run.best_measure = run.objective->measure(xx, gg);
+      run.best_measure = run.objective->measure(xx, grad);
       if (run.objective->failed()) run.stop = Stop::Error;
     }
   } else {
     // TAO's More-Thuente line search cannot back off from +inf (its cubic
     // step becomes NaN and the search fails at the first point outside the
-    // objective's domain). It is given a finite value above the best point's
-    // instead, with a zero gradient: never accepted (no sufficient decrease),
-    // it brackets the step, and the search shortens it as Ceres' does.
-    *f = run.best_value + std::max(1.0, std::abs(run.best_value));
+    // objective's domain). It is given a finite value above the current
+    // iterate's (where the line search started) instead, with a zero
+    // gradient: never accepted (no sufficient decrease), it brackets the
+    // step, and the search shortens it as Ceres' does. (Measured from the
+    // best point seen instead, a trial point of the same search could have
+    // lowered it enough for the placeholder to pass.)
+    *f = run.last_value + std::max(1.0, std::abs(run.last_value));
     for (std::size_t i = 0; i < n; ++i) gg[i] = 0.0;
     if (st == Status::Capped) run.stop = Stop::Capped;
     if (st == Status::Error) run.stop = Stop::Error;
@@ -126,7 +137,7 @@ PetscErrorCode convergence_test(Tao tao, void* data) {
   const PetscScalar* gg = nullptr;
   VecGetArrayRead(x, &xx);
   VecGetArrayRead(g, &gg);
-  const double measure = run.objective->measure(xx, gg);
+  const double measure = run.objective->measure(xx, run.objective->size() > 0 ? gg : &kEmptyGradient);
   VecRestoreArrayRead(g, &gg);
   VecRestoreArrayRead(x, &xx);
   if (run.objective->failed()) {
@@ -196,6 +207,26 @@ BackendResult run_tao_on(MPI_Comm comm, TrackedObjective& objective, std::vector
 
   BackendResult r;
   const PetscErrorCode solved = TaoSolve(tao.t);
+  if (comm != PETSC_COMM_SELF && (solved != 0 || run.stop == Stop::Error)) {
+    // One rank's error (an exception in its share of the objective, a PETSc
+    // failure) leaves the others inside a collective: the world is aborted,
+    // as MPI codes do, with the reason on stderr.
+    std::string why = "TaoSolve failed (PETSc error " + std::to_string(solved) + ")";
+    if (run.stop == Stop::Error) {
+      try {
+        objective.rethrow_if_failed();
+      } catch (const std::exception& e) {
+        why = e.what();
+      } catch (...) {
+        why = "an exception in the objective";
+      }
+    }
+    int rank = 0;
+    MPI_Comm_rank(comm, &rank);
+    std::fprintf(stderr, "otfp: error: rank %d: distributed solve: %s (aborting all ranks)\n", rank, why.c_str());
+    std::fflush(stderr);
+    MPI_Abort(comm, 1);
+  }
   TaoConvergedReason reason = TAO_CONTINUE_ITERATING;
   TaoGetConvergedReason(tao.t, &reason);
   PetscInt iterations = 0;

@@ -34,6 +34,10 @@ void ensure_petsc() {
   const int signals[] = {SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGABRT, SIGINT, SIGTERM};
   struct sigaction saved[std::size(signals)];
   for (std::size_t i = 0; i < std::size(signals); ++i) sigaction(signals[i], nullptr, &saved[i]);
+  // MPI as PETSc starts it: calls from any thread, one at a time (every
+  // call of the component holds petsc_mutex()); PETSc's default, FUNNELED,
+  // allows the main thread only, and serial TAO solves may run in others.
+  PETSC_MPI_THREAD_REQUIRED = MPI_THREAD_SERIALIZED;
   const PetscErrorCode ierr = PetscInitializeNoArguments();
   for (std::size_t i = 0; i < std::size(signals); ++i) sigaction(signals[i], &saved[i], nullptr);
   petsc_check(ierr, "PetscInitializeNoArguments");
