@@ -521,6 +521,29 @@ TEST(DistributedImplicitStepper, EmptyAndStillRanksTakePartInTheSolve) {
   }
 }
 
+// The evaluation cap ends a shared solve on every rank at the same
+// evaluation: the step is refused (MaxEvaluations) everywhere, the particles
+// stay, and the next step runs.
+TEST(DistributedImplicitStepper, TheEvaluationCapEndsTheSolveOnEveryRank) {
+  register_tao_backend();
+  Cloud c = ball_cloud(2, 400, 61, false);
+  for (auto& y : c.x) y *= 0.5;
+  const std::vector<int> owner = owners(c, Split::Slabs, 0);
+  ParticleSet mine_set(2);
+  for (std::size_t p = 0; p < c.x.size(); ++p)
+    if (owner[p] == world_rank()) mine_set.add(c.x[p], c.s[p], c.m[p]);
+  const std::vector<Vec3> before = mine_set.positions();
+  ImplicitOptions o = tao_step_options(WidthMode::Fixed);
+  o.minimizer.max_evaluations = 4;
+  DistributedImplicitStepper capped(2, o);
+  const StepSummary s = capped.step(mine_set, 3.0 * c.s[0] * c.s[0]);
+  EXPECT_FALSE(s.accepted);
+  EXPECT_EQ(s.reason, TerminationReason::MaxEvaluations) << s.message;
+  EXPECT_EQ(mine_set.positions(), before);
+  DistributedImplicitStepper free_to_run(2, tao_step_options(WidthMode::Fixed));
+  EXPECT_TRUE(free_to_run.step(mine_set, 3.0 * c.s[0] * c.s[0]).accepted);
+}
+
 // A width above the bound on one rank only: every rank throws, none waits.
 TEST(DistributedImplicitStepper, ARefusalOnOneRankIsEveryRanks) {
   register_tao_backend();

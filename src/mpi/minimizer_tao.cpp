@@ -207,7 +207,9 @@ BackendResult run_tao_on(MPI_Comm comm, TrackedObjective& objective, std::vector
 
   BackendResult r;
   const PetscErrorCode solved = TaoSolve(tao.t);
-  if (comm != PETSC_COMM_SELF && (solved != 0 || run.stop == Stop::Error)) {
+  // (The evaluation cap also unwinds TaoSolve with an error code, but every
+  // rank reaches it at the same evaluation: a normal end, MaxEvaluations.)
+  if (comm != PETSC_COMM_SELF && (run.stop == Stop::Error || (solved != 0 && run.stop == Stop::None))) {
     // One rank's error (an exception in its share of the objective, a PETSc
     // failure) leaves the others inside a collective: the world is aborted,
     // as MPI codes do, with the reason on stderr.
