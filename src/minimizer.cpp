@@ -4,6 +4,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <limits>
 #include <string>
@@ -268,8 +269,10 @@ MinimizerSummary minimize_with(Objective& objective, std::vector<double>& z, con
     summary.reason = TerminationReason::Converged;
   } else if (summary.reason == TerminationReason::Converged) {
     summary.reason = TerminationReason::Failure;
-    r.message += " (the backend stopped as converged where the stopping measure is " +
-                 std::to_string(r.final_measure) + " > " + std::to_string(options.gradient_tolerance) + ")";
+    char buf[128];
+    std::snprintf(buf, sizeof(buf), " (the backend stopped as converged where the stopping measure is %.3g > %.3g)",
+                  r.final_measure, options.gradient_tolerance);
+    r.message += buf;
   }
   summary.iterations = r.iterations;
   summary.final_value = r.final_value;

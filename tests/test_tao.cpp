@@ -164,7 +164,8 @@ TEST(TaoBackend, LbfgsMemoryIsTheLmvmHistory) {
 // lower that enough for the placeholder (zero gradient) to be accepted, and
 // TAO stopped there "converged" (found by review: measure 100 to 1000 at
 // tolerance 1e-6). Whatever TAO does, a Converged summary must be a point
-// inside the wall that meets the tolerance.
+// inside the wall that meets the tolerance, and a converged TAO run must be
+// reported as such.
 class Wall final : public otfp::Objective {
  public:
   Wall(double a, double w) : a_(a), w_(w) {}
@@ -191,6 +192,10 @@ TEST(TaoBackend, NeverConvergesOutsideTheDomain) {
       const MinimizerSummary s = otfp::minimize(f, z, tao_options(1e-6));
       ASSERT_LT(z[0], w);
       EXPECT_LE(s.final_value, s.initial_value);
+      // Failure here would be minimize() refusing the adapter's "converged"
+      // for the point it returned: the adapter must return the converged
+      // iterate, not an earlier trial point of equal F (found by review).
+      EXPECT_NE(s.reason, TerminationReason::Failure) << s.message;
       if (s.reason != TerminationReason::Converged) continue;
       ++converged;
       EXPECT_LE(s.final_stopping_measure, 1e-6);

@@ -256,10 +256,11 @@ std::size_t migrate(ParticleSet& owned, const Layout& layout) {
   // before anything changes, so that no rank goes on alone.
   std::vector<std::int64_t> arriving(in_ids);
   std::sort(arriving.begin(), arriving.end());
-  int repeated = std::adjacent_find(arriving.begin(), arriving.end()) != arriving.end() ? 1 : 0;
+  const auto twice = std::adjacent_find(arriving.begin(), arriving.end());
+  int repeated = twice != arriving.end() ? 1 : 0;
   std::vector<bool> leaves(owned.size(), false);
   for (std::size_t p : leaving) leaves[p] = true;
-  std::int64_t example = arriving.empty() ? -1 : arriving.front();
+  std::int64_t example = repeated ? *twice : -1;
   for (std::int64_t id : in_ids) {
     const std::ptrdiff_t here = owned.index_of(id);
     if (here >= 0 && !leaves[static_cast<std::size_t>(here)]) {

@@ -15,6 +15,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <exception>
 #include <memory>
 #include <limits>
@@ -31,6 +32,18 @@ namespace otfp {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+// An error on one rank inside the collective part of a step: with other
+// ranks in the world they wait in a collective, so the world is aborted.
+void abort_unless_alone(MPI_Comm comm, const char* what) {
+  int size = 1, rank = 0;
+  MPI_Comm_size(comm, &size);
+  if (size == 1) return;
+  MPI_Comm_rank(comm, &rank);
+  std::fprintf(stderr, "otfp: error: rank %d: distributed step: %s (aborting all ranks)\n", rank, what);
+  std::fflush(stderr);
+  MPI_Abort(comm, 1);
+}
 
 void require_supported(const ImplicitOptions& o) {
   o.validate();
@@ -121,60 +134,71 @@ StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
   MPI_Allreduce(MPI_IN_PLACE, &any_refused, 1, MPI_INT, MPI_MAX, d.comm);
   if (refused) std::rethrow_exception(refused);
   require(any_refused == 0, "particles", 0.0, "refused by another rank (its error names the field)");
-  detail::StepObjective& objective = *made;
-  if (o.stopping_norm == StoppingNorm::Energy) objective.set_max_norm_factor(o.max_norm_factor);
-  std::vector<double> z(objective.num_variables());
-  objective.pack(x, s, z.data());
+  // From here on every rank runs the same collectives: an exception on one
+  // rank only (its share of F, a PETSc failure) would leave the others
+  // waiting in one, so it aborts the world, with the reason on stderr.
+  try {
+    detail::StepObjective& objective = *made;
+    if (o.stopping_norm == StoppingNorm::Energy) objective.set_max_norm_factor(o.max_norm_factor);
+    std::vector<double> z(objective.num_variables());
+    objective.pack(x, s, z.data());
 
-  // The thresholds of the serial stepper, from global figures.
-  double mins[2] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
-  double mass = 0.0;
-  for (std::size_t p = 0; p < m.size(); ++p) {
-    mins[0] = std::min(mins[0], s[p]);
-    mins[1] = std::min(mins[1], m[p]);
-    mass += m[p];
+    // The thresholds of the serial stepper, from global figures.
+    double mins[2] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
+    double mass = 0.0;
+    for (std::size_t p = 0; p < m.size(); ++p) {
+      mins[0] = std::min(mins[0], s[p]);
+      mins[1] = std::min(mins[1], m[p]);
+      mass += m[p];
+    }
+    MPI_Allreduce(MPI_IN_PLACE, mins, 2, MPI_DOUBLE, MPI_MIN, d.comm);
+    MPI_Allreduce(MPI_IN_PLACE, &mass, 1, MPI_DOUBLE, MPI_SUM, d.comm);
+    const double s_min = std::isfinite(mins[0]) ? mins[0] : 1.0;
+    const double m_min = std::isfinite(mins[1]) ? mins[1] : 1.0;
+
+    double f0 = 0.0;
+    const bool start_ok = objective.evaluate(z.data(), &f0, nullptr);
+    const FunctionalParts before = objective.parts();
+    const detail::StepTolerances tol = detail::step_tolerances(o, dt, s_min, m_min, mass, before);
+    MinimizerOptions mo = o.minimizer;
+    mo.gradient_tolerance = tol.gradient_tolerance;
+    mo.relative_gradient_tolerance = o.relative_tolerance;  // the papers' path: the rule at x^k
+    mo.gradient_tolerance_floor = tol.floor_measure;
+    mo.start_tolerance = tol.stall_measure;
+    mo.validate();
+
+    MinimizerSummary ms;
+    if (start_ok) ms = detail::minimize_with(objective, z, mo, detail::run_tao_world, d.step_functional().all);
+    summary.reason = start_ok ? ms.reason : TerminationReason::NonFinite;
+    summary.iterations = ms.iterations;
+    summary.evaluations = ms.evaluations;
+    summary.solver_seconds = ms.solver_seconds;
+    summary.residual_displacement = ms.final_stopping_measure;
+    summary.gradient_tolerance = ms.gradient_tolerance;
+    summary.parts_before = before;
+    summary.f_before = summary.f_start = f0;
+
+    std::vector<Vec3> x_new = x;
+    std::vector<double> s_new = s;
+    const bool ok = detail::accept_solve(objective, z, start_ok, ms, tol, f0, before, o.energy_tolerance, x_new, s_new,
+                                         summary);
+    summary.list_builds = d.functional.exchange().rebuilds - builds_before;
+    if (ok) {
+      owned.positions() = std::move(x_new);
+      owned.widths() = std::move(s_new);
+    } else {
+      summary.rejected_solves = 1;
+    }
+    summary.accepted = ok;
+    summary.wall_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+    return summary;
+  } catch (const std::exception& e) {
+    abort_unless_alone(d.comm, e.what());
+    throw;
+  } catch (...) {
+    abort_unless_alone(d.comm, "an unknown exception");
+    throw;
   }
-  MPI_Allreduce(MPI_IN_PLACE, mins, 2, MPI_DOUBLE, MPI_MIN, d.comm);
-  MPI_Allreduce(MPI_IN_PLACE, &mass, 1, MPI_DOUBLE, MPI_SUM, d.comm);
-  const double s_min = std::isfinite(mins[0]) ? mins[0] : 1.0;
-  const double m_min = std::isfinite(mins[1]) ? mins[1] : 1.0;
-
-  double f0 = 0.0;
-  const bool start_ok = objective.evaluate(z.data(), &f0, nullptr);
-  const FunctionalParts before = objective.parts();
-  const detail::StepTolerances tol = detail::step_tolerances(o, dt, s_min, m_min, mass, before);
-  MinimizerOptions mo = o.minimizer;
-  mo.gradient_tolerance = tol.gradient_tolerance;
-  mo.relative_gradient_tolerance = o.relative_tolerance;  // the papers' path: the rule at x^k
-  mo.gradient_tolerance_floor = tol.floor_measure;
-  mo.start_tolerance = tol.stall_measure;
-  mo.validate();
-
-  MinimizerSummary ms;
-  if (start_ok) ms = detail::minimize_with(objective, z, mo, detail::run_tao_world, d.step_functional().all);
-  summary.reason = start_ok ? ms.reason : TerminationReason::NonFinite;
-  summary.iterations = ms.iterations;
-  summary.evaluations = ms.evaluations;
-  summary.solver_seconds = ms.solver_seconds;
-  summary.residual_displacement = ms.final_stopping_measure;
-  summary.gradient_tolerance = ms.gradient_tolerance;
-  summary.parts_before = before;
-  summary.f_before = summary.f_start = f0;
-
-  std::vector<Vec3> x_new = x;
-  std::vector<double> s_new = s;
-  const bool ok = detail::accept_solve(objective, z, start_ok, ms, tol, f0, before, o.energy_tolerance, x_new, s_new,
-                                       summary);
-  summary.list_builds = d.functional.exchange().rebuilds - builds_before;
-  if (ok) {
-    owned.positions() = std::move(x_new);
-    owned.widths() = std::move(s_new);
-  } else {
-    summary.rejected_solves = 1;
-  }
-  summary.accepted = ok;
-  summary.wall_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
-  return summary;
 }
 
 const ExchangeStats& DistributedImplicitStepper::exchange() const { return impl_->functional.exchange(); }

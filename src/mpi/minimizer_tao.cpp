@@ -138,6 +138,15 @@ PetscErrorCode convergence_test(Tao tao, void* data) {
   VecGetArrayRead(x, &xx);
   VecGetArrayRead(g, &gg);
   const double measure = run.objective->measure(xx, run.objective->size() > 0 ? gg : &kEmptyGradient);
+  const bool converged = measure <= run.options->gradient_tolerance;
+  if (converged) {
+    // The point returned is TAO's converged iterate, not the lowest value
+    // seen: a trial point of an earlier line search may have the same F to
+    // round-off and a stopping measure far above the tolerance.
+    run.best_x.assign(xx, xx + run.objective->size());
+    run.best_value = f;
+    run.best_measure = measure;
+  }
   VecRestoreArrayRead(g, &gg);
   VecRestoreArrayRead(x, &xx);
   if (run.objective->failed()) {
@@ -145,7 +154,7 @@ PetscErrorCode convergence_test(Tao tao, void* data) {
     return kStopCode;
   }
   const double ftol = run.options->function_tolerance;
-  if (measure <= run.options->gradient_tolerance) {
+  if (converged) {
     run.converged = true;
     return TaoSetConvergedReason(tao, TAO_CONVERGED_USER);
   }
