@@ -357,21 +357,43 @@ struct StepComparison {
 
 // `steps` implicit Euler steps of a clustered ball (it spreads, so the ghost
 // sets are rebuilt) by the serial TAO stepper and by the distributed one.
+// The whole cloud as one set (in global order), this rank's share of it,
+// and the global index of each of its particles.
+struct SplitSets {
+  ParticleSet serial, mine;
+  std::vector<std::size_t> global;
+};
+
+SplitSets split_sets(const Cloud& c, const std::vector<int>& owner) {
+  SplitSets out{ParticleSet(c.dim), ParticleSet(c.dim), {}};
+  for (std::size_t p = 0; p < c.x.size(); ++p) {
+    out.serial.add(c.x[p], c.s[p], c.m[p]);
+    if (owner[p] == world_rank()) {
+      out.mine.add(c.x[p], c.s[p], c.m[p]);
+      out.global.push_back(p);
+    }
+  }
+  return out;
+}
+
+// The largest distance, over all ranks, between a rank's particles and the
+// same particles of the serial set, in widths s0.
+double largest_difference(const SplitSets& sets, double s0) {
+  double dx = 0.0;
+  for (std::size_t i = 0; i < sets.global.size(); ++i)
+    dx = std::max(dx, (sets.mine.positions()[i] - sets.serial.positions()[sets.global[i]]).norm() / s0);
+  MPI_Allreduce(MPI_IN_PLACE, &dx, 1, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD);
+  return dx;
+}
+
 StepComparison compare_steps(int dim, std::size_t n, WidthMode widths, int steps, Split split) {
   register_tao_backend();
   Cloud c = ball_cloud(dim, n, 21, widths == WidthMode::PerParticle);
   for (auto& y : c.x) y *= 0.6;  // a dense core: F moves the particles by several widths
   DomainPtr ball = make_ball(dim, Vec3::Zero(), 1.0);
-  const std::vector<int> owner = owners(c, split, 5);
-  ParticleSet serial(dim), mine_set(dim);
-  std::vector<std::size_t> global;
-  for (std::size_t p = 0; p < c.x.size(); ++p) {
-    serial.add(c.x[p], c.s[p], c.m[p]);
-    if (owner[p] == world_rank()) {
-      mine_set.add(c.x[p], c.s[p], c.m[p]);
-      global.push_back(p);
-    }
-  }
+  SplitSets sets = split_sets(c, owners(c, split, 5));
+  ParticleSet& serial = sets.serial;
+  ParticleSet& mine_set = sets.mine;
   const double s0 = c.s[0];
   const double dt = 2.0 * s0 * s0;  // a few times the explicit limit
   ImplicitStepper one(dim, tao_step_options(widths), Barrier(ball, 100.0));
@@ -386,10 +408,8 @@ StepComparison compare_steps(int dim, std::size_t n, WidthMode widths, int steps
     r.distributed_evaluations += b.evaluations;
     r.f_rel = std::max(r.f_rel, std::abs(a.f_after - b.f_after) / std::abs(a.f_after));
   }
-  for (std::size_t i = 0; i < global.size(); ++i)
-    r.dx = std::max(r.dx, (mine_set.positions()[i] - serial.positions()[global[i]]).norm() / s0);
+  r.dx = largest_difference(sets, s0);
   for (std::size_t p = 0; p < c.x.size(); ++p) r.moved = std::max(r.moved, (serial.positions()[p] - start[p]).norm() / s0);
-  MPI_Allreduce(MPI_IN_PLACE, &r.dx, 1, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD);
   if (world_rank() == 0)
     std::printf("  %d ranks, %d-D, %d steps: particles moved up to %.3g widths; distributed - serial: %.2g widths, "
                 "F %.2g; evaluations %d (serial) and %d (distributed)\n",
@@ -493,15 +513,9 @@ TEST(DistributedImplicitStepper, EmptyAndStillRanksTakePartInTheSolve) {
     SCOPED_TRACE(layout == 0 ? "everything on rank 0" : "the far particle alone on the last rank");
     std::vector<int> owner(c.x.size(), 0);
     if (layout == 1) owner[far] = world_size() - 1;
-    ParticleSet serial(dim), mine_set(dim);
-    std::vector<std::size_t> global;
-    for (std::size_t p = 0; p < c.x.size(); ++p) {
-      serial.add(c.x[p], c.s[p], c.m[p]);
-      if (owner[p] == world_rank()) {
-        mine_set.add(c.x[p], c.s[p], c.m[p]);
-        global.push_back(p);
-      }
-    }
+    SplitSets sets = split_sets(c, owner);
+    ParticleSet& serial = sets.serial;
+    ParticleSet& mine_set = sets.mine;
     const double dt = 2.0 * c.s[0] * c.s[0];
     ImplicitStepper one(dim, tao_step_options(WidthMode::Fixed));
     DistributedImplicitStepper many(dim, tao_step_options(WidthMode::Fixed));
@@ -510,10 +524,7 @@ TEST(DistributedImplicitStepper, EmptyAndStillRanksTakePartInTheSolve) {
     EXPECT_TRUE(a.accepted) << a.message;
     EXPECT_TRUE(b.accepted) << b.message;
     EXPECT_EQ(a.evaluations, b.evaluations);
-    double dx = 0.0;
-    for (std::size_t i = 0; i < global.size(); ++i)
-      dx = std::max(dx, (mine_set.positions()[i] - serial.positions()[global[i]]).norm() / c.s[0]);
-    MPI_Allreduce(MPI_IN_PLACE, &dx, 1, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD);
+    const double dx = largest_difference(sets, c.s[0]);
     EXPECT_LT(dx, 1e-9);
     if (owner[far] == world_rank()) {
       EXPECT_EQ(mine_set.positions()[mine_set.size() - 1], c.x[far]) << "the far particle has nothing to move it";

@@ -87,7 +87,8 @@ struct DistributedFunctional::Impl {
   std::vector<Vec3> x_build;     // owned positions at the last build
   std::vector<double> s_build;   // owned list widths at the last build
   double skin = 0.0;
-  Gradient scratch;
+  Gradient scratch, barrier_scratch;
+  std::size_t n_sent = 0;  // blobs this rank sends in each exchange (its copies as other ranks' ghosts)
   ExchangeStats stats;
 
   Impl(int d, FunctionalOptions o, Barrier b, Periodicity p)
@@ -183,6 +184,7 @@ struct DistributedFunctional::Impl {
       recv_displ[static_cast<std::size_t>(r)] = recv_displ[static_cast<std::size_t>(r - 1)] + recv_counts[static_cast<std::size_t>(r - 1)];
     }
     const int n_send = send_displ.back() + send_counts.back();
+    n_sent = static_cast<std::size_t>(n_send);
     const int n_ghost = recv_displ.back() + recv_counts.back();
     std::vector<PetscInt> send_flat;
     send_flat.reserve(static_cast<std::size_t>(n_send));
@@ -244,17 +246,7 @@ struct DistributedFunctional::Impl {
                         "PetscSFBcastBegin");
     detail::petsc_check(PetscSFBcastEnd(sf, MPI_DOUBLE, s.data(), s_local.data() + n_owned, MPI_REPLACE),
                         "PetscSFBcastEnd");
-    stats.bytes_sent += static_cast<double>(sent_per_blob()) * (sizeof(Vec3) + sizeof(double));
-  }
-
-  // How many blobs this rank sends per exchange (its roots' leaves elsewhere).
-  std::size_t sent_per_blob() const {
-    const PetscInt* degree = nullptr;
-    PetscSFComputeDegreeBegin(sf, &degree);
-    PetscSFComputeDegreeEnd(sf, &degree);
-    std::size_t sent = 0;
-    for (std::size_t p = 0; p < n_owned; ++p) sent += static_cast<std::size_t>(degree[p]);
-    return sent;
+    stats.bytes_sent += static_cast<double>(n_sent) * (sizeof(Vec3) + sizeof(double));
   }
 };
 
@@ -324,10 +316,9 @@ FunctionalParts DistributedFunctional::evaluate(const std::vector<Vec3>& x, cons
     }
     d.stats.bytes_sent += static_cast<double>(n_local - n) * (sizeof(Vec3) + (widths ? sizeof(double) : 0));
     exchange += seconds_since(t1);
-    Gradient barrier_grad;
-    barrier_grad.resize(n, false);
-    parts.barrier = d.barrier.evaluate(x, d.m, &barrier_grad);
-    for (std::size_t p = 0; p < n; ++p) grad->x[p] += barrier_grad.x[p];
+    d.barrier_scratch.resize(n, false);
+    parts.barrier = d.barrier.evaluate(x, d.m, &d.barrier_scratch);
+    for (std::size_t p = 0; p < n; ++p) grad->x[p] += d.barrier_scratch.x[p];
   } else {
     parts.barrier = d.barrier.evaluate(x, d.m, nullptr);
   }
