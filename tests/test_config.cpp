@@ -253,6 +253,10 @@ TEST(Config, BadConfigurationsNameTheirKey) {
       {"negative sublayers", kBase, {"treatment.reservoir_sublayers=-1"}, "treatment.reservoir_sublayers"},
       {"unknown reservoir profile", kBase, {"treatment.reservoir_profile=even"}, "treatment.reservoir_profile"},
       {"unknown outflow rule", kBase, {"treatment.neumann_outflow=all"}, "treatment.neumann_outflow"},
+      {"algorithm NLopt does not offer", kBase, {"solver.backend=nlopt", "solver.algorithm=bfgs"}, "solver.algorithm"},
+      // In this process TAO is not registered (the backend is refused); the
+      // tool registers it (its algorithm is refused): both name solver.backend.
+      {"algorithm TAO does not offer", kBase, {"solver.backend=tao", "solver.algorithm=bfgs"}, "solver.backend"},
       {"reservoir on a sub-patch",
        kBase + "[[domain.subpatch]]\nname = \"o\"\non = \"surface\"\ncenter = [0, 0, 1]\nradius = 0.3\n",
        {"boundary.0.patch=o", "treatment.dirichlet=reservoir"}, "treatment.dirichlet"},
