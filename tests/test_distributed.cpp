@@ -17,6 +17,7 @@
 #include "otfp/distributed_stepper.hpp"
 #include "otfp/functional.hpp"
 #include "otfp/geometry.hpp"
+#include "otfp/images.hpp"
 #include "otfp/implicit_stepper.hpp"
 #include "otfp/mpi.hpp"
 #include "otfp/tao.hpp"
@@ -104,10 +105,15 @@ struct Compared {
 // F and this rank's gradient entries against the serial ones, after the
 // reference evaluation and after each displacement of `shifts`.
 std::vector<Compared> compare(const Cloud& reference, Split split, bool widths, const Barrier& barrier,
-                              const Periodicity& per, const std::vector<double>& shifts) {
+                              const Periodicity& per, const std::vector<double>& shifts,
+                              const std::vector<MirrorWallPtr>& walls = {}) {
   const std::vector<int> owner = owners(reference, split, 99);
   Functional serial(reference.dim, options(widths), barrier, per);
   DistributedFunctional dist(reference.dim, options(widths), barrier, per);
+  if (!walls.empty()) {
+    serial.set_images(WallImages(walls));
+    dist.set_images(WallImages(walls));
+  }
   serial.set_reference(reference.x, reference.s, reference.m);
   dist.set_reference(mine(reference.x, owner), mine(reference.s, owner), mine(reference.m, owner));
   std::vector<Compared> out;
@@ -183,6 +189,37 @@ TEST(DistributedFunctional, MatchesSerialAcrossPeriodicFaces) {
     for (int k = 0; k < dim; ++k) per.period[k] = 1.0;
     // Slabs along x: the first and the last rank are neighbours across x = 0.
     expect_round_off(compare(c, Split::Slabs, false, Barrier(), per, {0.05, 2.0}));
+  }
+}
+
+// Image blobs: each rank mirrors its own particles and its ghosts. Plane
+// walls of a box close to the cloud on every side (images of order 1 to 3 at
+// edges and corners), and the sphere wall of a ball (the reservoir band's
+// back face), on slabs and on random assignments; the shifts keep and
+// rebuild the list.
+TEST(DistributedFunctional, MatchesSerialWithImageBlobs) {
+  for (int dim : {2, 3}) {
+    SCOPED_TRACE(dim);
+    const Cloud c = ball_cloud(dim, dim == 2 ? 700 : 1500, 12 + dim, dim == 2);
+    const double h = 0.8;  // the box [-h, h]^d cuts into the ball of radius 0.9
+    Cloud in_box = c;
+    for (auto& y : in_box.x)
+      for (int k = 0; k < dim; ++k) y[k] = std::clamp(y[k], -0.97 * h, 0.97 * h);
+    std::vector<MirrorWallPtr> planes;
+    for (int k = 0; k < dim; ++k) {
+      Vec3 n = Vec3::Zero();
+      n[k] = 1.0;
+      planes.push_back(make_plane_wall(h * n, n));
+      planes.push_back(make_plane_wall(-h * n, -n));
+    }
+    DomainPtr box = make_box(dim, Vec3::Constant(-h), Vec3::Constant(h));
+    for (Split split : {Split::Slabs, Split::Random})
+      expect_round_off(compare(in_box, split, dim == 2, Barrier(box, 100.0), Periodicity::none(dim), {0.05, 2.0},
+                               planes));
+    const std::vector<MirrorWallPtr> sphere{make_sphere_wall(dim, Vec3::Zero(), 0.93)};
+    DomainPtr ball = make_ball(dim, Vec3::Zero(), 0.93);
+    for (Split split : {Split::Slabs, Split::Random})
+      expect_round_off(compare(c, split, dim == 2, Barrier(ball, 100.0), Periodicity::none(dim), {0.05, 2.0}, sphere));
   }
 }
 

@@ -10,8 +10,8 @@
 // slabs and on random assignments with 1, 2 and 3 ranks). Which rank owns
 // which particle is the caller's (otfp/decomposition.hpp).
 //
-// Not yet: image blobs at mirrored walls (set_images) - a Barrier and
-// periodic axes are supported.
+// A Barrier, periodic axes and image blobs at mirrored walls (set_images)
+// are supported.
 #include <cstddef>
 #include <memory>
 #include <vector>
@@ -48,6 +48,11 @@ class DistributedFunctional {
   // when any particle anywhere has moved more than half the skin since the
   // last build (or a width has left its margin), as the serial list is.
   FunctionalParts evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad);
+
+  // Image blobs at mirrored walls, as Functional::set_images: each rank
+  // mirrors its own particles and its ghosts (the serial selection rule).
+  void set_images(WallImages images);
+  const WallImages& images() const;
 
   void set_dt(double dt);  // the transport term's step (> 0)
   std::size_t owned() const;

@@ -12,7 +12,7 @@
 // naming the field): a backend other than TAO, BDF2, a predictor. Not yet,
 // and ignored: halving of a failed step (max_halvings: a failed step is
 // reported, not retried), the error estimate, sort_particles; there is no
-// external potential and no image blobs.
+// external potential. Image blobs: functional().set_images().
 //
 // One distributed step (or functional evaluation) per process at a time:
 // two threads of one process running collectives on the same world would
@@ -43,6 +43,7 @@ class DistributedImplicitStepper {
   StepSummary step(ParticleSet& owned, double dt);
 
   const ExchangeStats& exchange() const;
+  DistributedFunctional& functional();
   const ImplicitOptions& options() const;
 
  private:

@@ -21,6 +21,17 @@
 // rebuilt together by the serial rule, taken over all ranks: when 2 x the
 // largest displacement since the build plus the growth of a cut-off exceeds
 // the skin.
+//
+// Image blobs (no-flux walls, the reservoir band's back face): each rank
+// mirrors its own particles and its ghosts, by the serial rule (a blob within
+// its list radius of a wall), and appends the images to its local blobs. An
+// image enters an owned particle's list only if its source is within the
+// list radius too: reflection across a plane, or across a sphere the domain
+// lies inside, never brings a point closer to the domain's side, |p - q| <=
+// |p - R(q)| (for the sphere (2R - 2 r_q)(2R - 2 r_p cos) >= 0), so the
+// source is already among the rank's blobs. An image's derivative goes to
+// its source by the reflection's chain rule (WallImages::pull_back), before
+// the ghosts' share is sent back to the owners.
 #include "otfp/distributed_functional.hpp"
 
 #include <petscsf.h>
@@ -70,6 +81,8 @@ struct DistributedFunctional::Impl {
   BarrierTerm barrier;
   Periodicity per;
   NeighborList list;
+  WallImages images;
+  std::vector<Vec3> image_x, image_x_build, image_grad;  // images' positions (now, at the build), derivative
 
   MPI_Comm comm = MPI_COMM_NULL;
   int rank = 0, size = 1;
@@ -88,6 +101,7 @@ struct DistributedFunctional::Impl {
   std::vector<double> s_build;   // owned list widths at the last build
   double skin = 0.0;
   Gradient scratch, barrier_scratch;
+  std::size_t n_ghosts = 0;  // ghosts (x_local[n_owned, n_owned + n_ghosts)), then images
   std::size_t n_sent = 0;  // blobs this rank sends in each exchange (its copies as other ranks' ghosts)
   ExchangeStats stats;
 
@@ -120,7 +134,10 @@ struct DistributedFunctional::Impl {
     return out;
   }
 
-  bool needs_rebuild(const std::vector<Vec3>& x, const std::vector<double>& s) const {
+  // With images the ghosts' positions are sent first (the current star
+  // forest), so that the images' displacement enters the rule too (the serial
+  // list's covers particles and images alike).
+  bool needs_rebuild(const std::vector<Vec3>& x, const std::vector<double>& s) {
     int local = stale || x.size() != x_build.size() ? 1 : 0;
     double measure = 0.0;
     if (!local) {
@@ -128,6 +145,12 @@ struct DistributedFunctional::Impl {
       for (std::size_t p = 0; p < x.size(); ++p) {
         disp2 = std::max(disp2, per.displacement(x[p], x_build[p]).squaredNorm());
         growth = std::max(growth, s[p] - s_build[p]);
+      }
+      if (images.active()) {
+        bcast(x, s);
+        images.positions(x_local, image_x);
+        for (std::size_t i = 0; i < image_x.size(); ++i)
+          disp2 = std::max(disp2, (image_x[i] - image_x_build[i]).squaredNorm());
       }
       measure = 2.0 * std::sqrt(disp2) + cutoff_radius(growth, options.neighbor.kernel_tolerance);
     }
@@ -208,7 +231,8 @@ struct DistributedFunctional::Impl {
 
     // Ghost data: positions, widths and masses.
     n_owned = x.size();
-    const std::size_t n_local = n_owned + static_cast<std::size_t>(n_ghost);
+    n_ghosts = static_cast<std::size_t>(n_ghost);
+    const std::size_t n_local = n_owned + n_ghosts;
     x_local.resize(n_local);
     s_local.resize(n_local);
     m_local.resize(n_local);
@@ -221,8 +245,18 @@ struct DistributedFunctional::Impl {
     NeighborOptions local_options = no;
     local_options.skin = skin;
     list = NeighborList(local_options);
-    s_list_local.resize(n_local);
-    for (std::size_t p = 0; p < n_local; ++p) s_list_local[p] = list_width(s_local[p]);
+    if (images.active()) {
+      // The serial rule (Functional::select_images): mirrored within r_c(s) + skin.
+      const double rc_per_s = cutoff_radius(1.0, no.kernel_tolerance);
+      std::vector<double> reach(n_local);
+      for (std::size_t p = 0; p < n_local; ++p) reach[p] = list_width(s_local[p]) * rc_per_s + skin;
+      images.select(x_local, reach);
+      images.positions(x_local, image_x);
+      image_x_build = image_x;
+    }
+    extend();
+    s_list_local.resize(x_local.size());
+    for (std::size_t p = 0; p < x_local.size(); ++p) s_list_local[p] = list_width(s_local[p]);
     list.build(x_local, s_list_local, per);
     // Ghost rows only gather the derivatives of the own terms: their
     // entries to other ghosts would add zeros (docs/distributed.md).
@@ -232,10 +266,26 @@ struct DistributedFunctional::Impl {
     for (std::size_t p = 0; p < n_owned; ++p) s_build[p] = list_width(s[p]);
     stale = false;
     ++stats.rebuilds;
-    stats.ghosts = static_cast<std::size_t>(n_ghost);
+    stats.ghosts = n_ghosts;
   }
 
   // Owned (x, s) into the local arrays, the ghosts' from their owners.
+  // The images after the owned blobs and the ghosts: positions from their
+  // sources' (x_local's first n_owned + n_ghost entries), widths and masses theirs.
+  void extend() {
+    const std::size_t n_src = n_owned + n_ghosts;
+    const auto& src = images.sources();
+    if (images.active()) images.positions(x_local, image_x);
+    x_local.resize(n_src + src.size());
+    s_local.resize(n_src + src.size());
+    m_local.resize(n_src + src.size());
+    for (std::size_t i = 0; i < src.size(); ++i) {
+      x_local[n_src + i] = image_x[i];
+      s_local[n_src + i] = s_local[src[i]];
+      m_local[n_src + i] = m_local[src[i]];
+    }
+  }
+
   void bcast(const std::vector<Vec3>& x, const std::vector<double>& s) {
     std::copy(x.begin(), x.end(), x_local.begin());
     std::copy(s.begin(), s.end(), s_local.begin());
@@ -283,22 +333,33 @@ FunctionalParts DistributedFunctional::evaluate(const std::vector<Vec3>& x, cons
           "must match the owned particles set by set_reference()");
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   const auto t0 = Clock::now();
-  if (d.needs_rebuild(x, s))
+  if (d.needs_rebuild(x, s)) {
     d.rebuild(x, s);
-  else
-    d.bcast(x, s);
+  } else {
+    if (!d.images.active()) d.bcast(x, s);  // with images needs_rebuild() has sent them
+    d.extend();
+  }
   double exchange = seconds_since(t0);
 
-  const std::size_t n = d.n_owned, n_local = d.x_local.size();
+  const std::size_t n = d.n_owned, n_local = d.n_owned + d.n_ghosts, n_ext = d.x_local.size();
   const bool widths = grad && d.options.optimise_widths;
   FunctionalParts parts;
   if (grad) {
     grad->resize(n, widths);
-    d.scratch.resize(n_local, widths);
+    d.scratch.resize(n_ext, widths);
   }
   parts.transport = d.transport.evaluate(x, s, d.m, d.x_ref, d.s_ref, grad);
   parts.entropy = d.entropy.evaluate(d.x_local, d.s_local, d.m_local, d.list, grad ? &d.scratch : nullptr, n);
   if (grad) {
+    if (d.images.active()) {
+      // Images move with their sources (owned or ghost: the chain rule
+      // through the reflection) and share their widths.
+      const auto& src = d.images.sources();
+      d.image_grad.assign(d.scratch.x.begin() + static_cast<std::ptrdiff_t>(n_local), d.scratch.x.end());
+      d.images.pull_back(d.x_local, d.image_grad, d.scratch.x);
+      if (widths)
+        for (std::size_t i = 0; i < src.size(); ++i) d.scratch.s[src[i]] += d.scratch.s[n_local + i];
+    }
     for (std::size_t p = 0; p < n; ++p) grad->x[p] += d.scratch.x[p];
     if (widths)
       for (std::size_t p = 0; p < n; ++p) grad->s[p] += d.scratch.s[p];
@@ -333,6 +394,14 @@ FunctionalParts DistributedFunctional::evaluate(const std::vector<Vec3>& x, cons
   ++d.stats.evaluations;
   return parts;
 }
+
+void DistributedFunctional::set_images(WallImages images) {
+  require(!images.active() || !impl_->per.any(), "images", "walls", "cannot be combined with a periodic box");
+  impl_->images = std::move(images);
+  impl_->stale = true;
+}
+
+const WallImages& DistributedFunctional::images() const { return impl_->images; }
 
 void DistributedFunctional::set_dt(double dt) {
   require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");

@@ -202,6 +202,7 @@ StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
 }
 
 const ExchangeStats& DistributedImplicitStepper::exchange() const { return impl_->functional.exchange(); }
+DistributedFunctional& DistributedImplicitStepper::functional() { return impl_->functional; }
 const ImplicitOptions& DistributedImplicitStepper::options() const { return impl_->options; }
 
 }  // namespace otfp
