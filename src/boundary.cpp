@@ -13,6 +13,8 @@
 #include <vector>
 
 #include "boundary_internal.hpp"
+#include "otfp/neighbor_list.hpp"
+#include "placement_density.hpp"
 
 namespace otfp {
 
@@ -307,6 +309,19 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
     }
   }
 
+  if (options_.draw_by_id) {
+    // The candidates in id order: the same draws whatever the storage order
+    // (a distributed run gathers its particles in another order).
+    const std::vector<ParticleId>& ids = particles.ids();
+    auto by_id = [&](std::vector<std::size_t>& pool) {
+      std::sort(pool.begin(), pool.end(), [&](std::size_t u, std::size_t v) { return ids[u] < ids[v]; });
+    };
+    for (std::size_t i = 0; i < nc; ++i) {
+      by_id(members[i]);
+      for (auto& pool : sublayer_members[i]) by_id(pool);
+    }
+  }
+
   PatchLedger call;
   std::vector<std::size_t> to_remove;
   auto remove_for = [&](std::size_t i, std::size_t index) {
@@ -416,6 +431,29 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
 
   if (!to_remove.empty()) particles.remove_indices(std::move(to_remove));
   return call;
+}
+
+bool BoundaryProjection::reads(const Vec3& x, double s_max) const {
+  const double sd = domain_->signed_distance(x);
+  if (!(sd <= 0.0)) return true;  // outside Omega (or undecided): absorbed, a band member, or beyond
+  const bool reservoir_mode = options_.dirichlet_mode == DirichletMode::Reservoir;
+  // The band's mass sums follow a blob kTailWidths widths (reservoir_quiet.cpp);
+  // the placement density is evaluated in the band and at its mirror points
+  // inside (depth <= w), over blobs within its kernel's cut-off.
+  const double reach = std::max(detail::kTailWidths * s_max, cutoff_radius(s_max, detail::kPlacementKernelTolerance));
+  for (std::size_t i = 0; i < conditions_.size(); ++i) {
+    const PatchCondition& c = conditions_[i];
+    if (c.kind == PatchKind::NoFlux) continue;
+    if (c.kind == PatchKind::Neumann && options_.neumann_outflow == NeumannOutflow::NearestParticles) return true;
+    if (c.kind == PatchKind::Dirichlet && reservoir_mode) {
+      const Reservoir& r = reservoirs_[i];
+      const double xi = r.wall ? r.wall->distance(x) : sd;  // both 1-Lipschitz, < 0 inside
+      if (xi > -(options_.reservoir_thickness + reach)) return true;
+    } else if (sd > -options_.layer_b) {
+      return true;  // B_l and B_l^int lie within b of the boundary
+    }
+  }
+  return false;
 }
 
 std::string BoundaryProjection::patch_label(std::size_t i, double t) const {

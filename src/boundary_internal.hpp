@@ -45,6 +45,10 @@ inline double mean_of(const BoundaryData& g, const std::vector<Vec3>& points, do
   return sum / static_cast<double>(points.size());
 }
 
+// How far a blob's mass is followed from its centre (in widths s) when the
+// quiet reservoir sums it into depth intervals.
+constexpr double kTailWidths = 7.0;
+
 // Draws one not-yet-drawn entry of pool[k..] uniformly (partial Fisher-Yates),
 // so repeated calls with k = 0, 1, ... sample without replacement.
 inline std::size_t draw_without_replacement(std::vector<std::size_t>& pool, std::size_t k, Rng& rng) {

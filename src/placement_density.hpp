@@ -12,6 +12,9 @@
 
 namespace otfp::detail {
 
+// The kernel value (relative to its peak) at the placement density's cut-off.
+constexpr double kPlacementKernelTolerance = 1e-8;
+
 class PlacementDensity {
  public:
   // The blobs are the particles and their images across `walls`, chosen as
@@ -19,7 +22,7 @@ class PlacementDensity {
   // images of images at edges and corners), so that a settled state of the
   // functional reads as one here. Kernels are cut at kernel_tolerance.
   PlacementDensity(const ParticleSet& particles, const std::vector<MirrorWallPtr>& walls,
-                   double kernel_tolerance = 1e-8);
+                   double kernel_tolerance = kPlacementKernelTolerance);
   // The largest cut-off radius of the blobs.
   double radius() const { return radius_; }
   // The blob density at y, images included.

@@ -26,6 +26,7 @@
 namespace otfp {
 
 using detail::kMinCandidates;
+using detail::kTailWidths;
 using detail::PlacementDensity;
 
 namespace {
@@ -33,8 +34,6 @@ namespace {
 // Quiet control: the sublayer next to the band's back wall is corrected only
 // when its deficit exceeds this fraction of its target (see project_reservoir_quiet).
 constexpr double kBackTolerance = 0.05;
-// Quiet control: blobs farther than this many widths from a depth interval put no mass in it.
-constexpr double kTailWidths = 7.0;
 // Quiet control: candidate points ranked per particle to insert.
 constexpr std::size_t kCandidatesPerInsertion = 16;
 

@@ -1,4 +1,6 @@
 #include "otfp/boundary.hpp"
+#include "otfp/run_setup.hpp"
+#include "otfp/simulation.hpp"
 
 #include <gtest/gtest.h>
 
@@ -1010,4 +1012,169 @@ TEST(BoundaryProjection, ReservoirOddProfileMirrorsTheInteriorAboutG) {
   EXPECT_EQ(to_string(ReservoirProfile::Odd), "odd");
   EXPECT_EQ(reservoir_profile_from_string("uniform"), ReservoirProfile::Uniform);
   EXPECT_THROW(reservoir_profile_from_string("even"), InvalidArgument);
+}
+
+// ---------------------------------------------------------------- reads
+// apply() on the particles it reads() (in their
+// storage order) does what it does on all of them: the same ledger, random
+// numbers, removals and insertions, and the deeper particles untouched. A
+// distributed run relies on it (it projects the gathered near-boundary
+// particles). The state is a short run's, thinned near the boundary so that
+// the projection has work to do.
+namespace {
+
+struct DepthComparison {
+  bool same = true;
+  long acted = 0;          // inserted + removed on all particles
+  std::size_t left_out = 0;  // particles the projection does not read
+};
+
+bool same_state(const Rng& a, const Rng& b) {
+  const Rng::State sa = a.state(), sb = b.state();
+  return std::equal(sa.s, sa.s + 4, sb.s);
+}
+
+DepthComparison compare_within_depth(const DomainPtr& domain, const std::vector<ConstantBoundaryData>& boundary,
+                                     RunSetupOptions ro, int steps, bool cut_at_band_width = false) {
+  const int dim = domain->dim();
+  const RunSetup setup = setup_run(*domain, boundary, ro);
+  Simulation sim(domain, boundary, setup.options);
+  // Filled at the Dirichlet value, uniformly at random: particles at every depth.
+  ParticleSet fill(dim);
+  Rng rng(11);
+  const auto n = static_cast<std::size_t>(boundary[0].value * domain->volume() / setup.options.particle_mass);
+  for (std::size_t p = 0; p < n; ++p)
+    fill.add(domain->sample_interior(rng), setup.options.width_s, setup.options.particle_mass);
+  sim.start(fill);
+  for (int k = 0; k < steps; ++k) sim.advance(setup.parameters.dt);
+  ParticleSet all = sim.particles();
+  std::vector<std::size_t> thin;
+  for (std::size_t p = 0; p < all.size(); ++p)
+    if (std::abs(domain->signed_distance(all.positions()[p])) < 0.5 * setup.parameters.dr && all.ids()[p] % 2 == 0)
+      thin.push_back(p);
+  all.remove_indices(thin);
+  double s_max = 0.0;
+  for (double s : all.widths()) s_max = std::max(s_max, s);
+  // cut_at_band_width: also leave out what lies deeper than the band's
+  // width w inside Omega, a test of the test.
+  const double cut = cut_at_band_width ? setup.parameters.reservoir_width : std::numeric_limits<double>::infinity();
+  ParticleSet near(dim);
+  for (std::size_t p = 0; p < all.size(); ++p)
+    if (sim.projection().reads(all.positions()[p], s_max) && domain->signed_distance(all.positions()[p]) > -cut)
+      near.add_with_id(all.ids()[p], all.positions()[p], all.widths()[p], all.masses()[p], all.birth_times()[p]);
+  near.set_next_id(all.next_id());
+  DepthComparison r;
+  r.left_out = all.size() - near.size();
+  const ParticleSet deep_before = all;
+  BoundaryProjection a = sim.projection(), b = sim.projection();
+  Rng ra(7), rb(7);
+  const PatchLedger la = a.apply(all, sim.time(), setup.parameters.dt, ra);
+  const PatchLedger lb = b.apply(near, sim.time(), setup.parameters.dt, rb);
+  r.acted = la.inserted + la.removed;
+  r.same = la.inserted == lb.inserted && la.removed == lb.removed && la.mass_inserted == lb.mass_inserted &&
+           la.mass_removed == lb.mass_removed && la.absorbed == lb.absorbed && same_state(ra, rb) &&
+           all.size() - near.size() == r.left_out && all.next_id() == near.next_id();
+  for (std::size_t i = 0; r.same && i < near.size(); ++i) {
+    const std::ptrdiff_t p = all.index_of(near.ids()[i]);
+    r.same = p >= 0 && all.positions()[static_cast<std::size_t>(p)] == near.positions()[i] &&
+             all.widths()[static_cast<std::size_t>(p)] == near.widths()[i];
+  }
+  return r;
+}
+
+RunSetupOptions depth_run(TreatmentPreset preset, int dim, std::int64_t n_inf) {
+  RunSetupOptions ro;
+  ro.n_inf = n_inf;
+  ro.t_end = 1.0;
+  ro.treatment = treatment_preset(preset, dim);
+  return ro;
+}
+
+}  // namespace
+
+TEST(BoundaryProjection, ProjectsTheParticlesItReadsAsItProjectsAll) {
+  const std::vector<ConstantBoundaryData> sphere_data{{0, PatchKind::Dirichlet, 0.238732}};
+  const std::vector<ConstantBoundaryData> box_data{{0, PatchKind::Dirichlet, 500.0}};
+  DomainPtr ball = make_ball(3, Vec3::Zero(), 1.0);
+  DomainPtr box = make_box(3, Vec3::Zero(), Vec3(2.0, 1.0, 1.0));
+  DomainPtr square = make_box(2, Vec3::Zero(), Vec3(1.0, 1.0, 0.0));
+  const std::vector<ConstantBoundaryData> square_data{{0, PatchKind::Dirichlet, 400.0}, {1, PatchKind::Neumann, 5.0}};
+  struct Case {
+    const char* name;
+    DomainPtr domain;
+    std::vector<ConstantBoundaryData> data;
+    RunSetupOptions ro;
+  };
+  // (The sphere's quiet reservoir reads the whole ball below n_inf ~ 3000.)
+  std::vector<Case> cases{{"box, quiet reservoir", box, box_data, depth_run(TreatmentPreset::Converging, 3, 1000)},
+                          {"sphere, papers' layer", ball, sphere_data, depth_run(TreatmentPreset::Papers, 3, 300)},
+                          {"square, layer and an outlet", square, square_data, depth_run(TreatmentPreset::Papers, 2, 300)}};
+  Case exact{"box, exact reservoir", box, box_data, depth_run(TreatmentPreset::Converging, 3, 1000)};
+  exact.ro.treatment.reservoir_control = ReservoirControl::Exact;
+  cases.push_back(exact);
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const DepthComparison r = compare_within_depth(c.domain, c.data, c.ro, 3);
+    EXPECT_TRUE(r.same);
+    EXPECT_GT(r.acted, 0) << "the projection must have work to do";
+    EXPECT_GT(r.left_out, 0u) << "the depth must leave the interior out";
+  }
+  // Without the blobs beyond depth w, whose tails reach the quiet
+  // reservoir's mirror sublayers, the comparison sees a difference.
+  EXPECT_FALSE(compare_within_depth(box, box_data, depth_run(TreatmentPreset::Converging, 3, 1000), 3, true).same);
+}
+
+TEST(BoundaryProjection, ReadsEverythingWhenOutletsTakeTheNearestParticles) {
+  DomainPtr square = make_box(2, Vec3::Zero(), Vec3(1.0, 1.0, 0.0));
+  ProjectionOptions po;
+  po.neumann_outflow = NeumannOutflow::NearestParticles;
+  PatchCondition outlet;
+  outlet.patch = 1;
+  outlet.kind = PatchKind::Neumann;
+  outlet.data = [](const Vec3&, double) { return 1.0; };
+  BoundaryProjection nearest(square, {outlet}, po, 1.0, 0.05);
+  const Vec3 middle(0.5, 0.5, 0.0);
+  EXPECT_TRUE(nearest.reads(middle, 0.05));
+  po.neumann_outflow = NeumannOutflow::Layer;
+  BoundaryProjection layer(square, {outlet}, po, 1.0, 0.05);
+  EXPECT_FALSE(layer.reads(middle, 0.05));
+  EXPECT_TRUE(layer.reads(Vec3(0.5 * po.layer_b, 0.5, 0.0), 0.05));
+}
+
+// draw_by_id: the papers' random deletions choose the same particles
+// whatever the order the particles are stored in.
+TEST(BoundaryProjection, DrawByIdIsIndependentOfStorageOrder) {
+  DomainPtr ball = make_ball(3, Vec3::Zero(), 1.0);
+  const std::vector<ConstantBoundaryData> data{{0, PatchKind::Dirichlet, 0.2}};
+  RunSetupOptions ro = depth_run(TreatmentPreset::Papers, 3, 300);
+  RunSetup setup = setup_run(*ball, data, ro);
+  Simulation sim(ball, data, setup.options);
+  sim.start(ParticleSet(3));
+  for (int k = 0; k < 3; ++k) sim.advance(setup.parameters.dt);
+  // Over-full: every particle of B_l^int doubled (new ids), so that the layer deletes.
+  ParticleSet a = sim.particles();
+  const std::size_t n = a.size();
+  for (std::size_t p = 0; p < n; ++p)
+    if (ball->signed_distance(a.positions()[p]) > -setup.parameters.layer_b)
+      a.add(a.positions()[p] * 0.999, a.widths()[p], a.masses()[p]);
+  std::vector<std::size_t> reversed(a.size());
+  for (std::size_t i = 0; i < reversed.size(); ++i) reversed[i] = reversed.size() - 1 - i;
+  auto removed_ids = [&](bool by_id, bool reverse) {
+    ProjectionOptions po = sim.projection().options();
+    ParticleSet set = a;
+    if (reverse) set.reorder(reversed);
+    BoundaryProjection proj = sim.projection();
+    Rng rng(3);
+    std::set<ParticleId> before(set.ids().begin(), set.ids().end());
+    if (by_id) {
+      po.draw_by_id = true;
+      proj = BoundaryProjection(ball, proj.conditions(), po, setup.options.particle_mass, setup.options.width_s);
+    }
+    const PatchLedger l = proj.apply(set, sim.time(), setup.parameters.dt, rng);
+    EXPECT_GT(l.removed, 0);
+    for (ParticleId id : set.ids()) before.erase(id);
+    return before;
+  };
+  EXPECT_EQ(removed_ids(true, false), removed_ids(true, true));
+  EXPECT_NE(removed_ids(false, false), removed_ids(false, true)) << "storage order decides the papers' draws";
 }

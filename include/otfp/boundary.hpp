@@ -81,6 +81,7 @@ struct ProjectionOptions {
   double reservoir_integral_time = 0.0;  // Reservoir, Quiet: tau of the deficit's time integral within the tolerance (0: off; setup_run: 10 w^2 / kappa)
   double reservoir_group_target = 64.0;  // Reservoir, Quiet: sublayers held together until their targets reach this (particles)
   bool absorb_exterior = false;                           // Layer: remove particles outside Omega on Dirichlet patches
+  bool draw_by_id = false;  // random deletions drawn from the candidates in id order, not storage order (distributed runs)
   // Throws InvalidArgument naming the field, the value and the rule. The
   // reservoir fields are checked only with dirichlet_mode = Reservoir;
   // reservoir_domain only when asked (a Simulation builds its own).
@@ -160,6 +161,16 @@ class BoundaryProjection {
   // ResourceLimitExceeded naming the patch and the count otherwise (the
   // particles may then be partly projected: otfp::Simulation puts the step back).
   PatchLedger apply(ParticleSet& particles, double t, double dt, Rng& rng);
+  // Whether apply() may read a particle at x (s_max: the largest width
+  // present): one it does not read is not counted, removed or moved, and the
+  // reservoir's placement density does not see it, so apply() on the
+  // particles it reads (in their storage order) does what it does on all of
+  // them. Read: outside Omega; within b of the boundary (layer, Neumann);
+  // within w plus the reach of a blob's mass tail and of the placement
+  // kernel of a reservoir's wall; anywhere when an outlet may take the
+  // particles nearest to it (NearestParticles). A distributed run projects
+  // the gathered particles it reads.
+  bool reads(const Vec3& x, double s_max) const;
   void set_max_particles(std::int64_t max_particles) { max_particles_ = max_particles; }
   // Walls across which the blob density has image blobs (otfp::Simulation
   // passes its mirrored walls): the quiet reservoir's placement counts them.
