@@ -1,4 +1,5 @@
 #include "otfp/simulation.hpp"
+#include "otfp/run_distribution.hpp"
 
 #include <algorithm>
 #include <charconv>
@@ -120,8 +121,13 @@ struct Simulation::Saved {
 };
 
 Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> boundary, SimulationOptions options)
+    : Simulation(std::move(domain), std::move(boundary), std::move(options), nullptr) {}
+
+Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> boundary, SimulationOptions options,
+                       std::shared_ptr<RunDistribution> distribution)
     : domain_(std::move(domain)),
       boundary_(std::move(boundary)),
+      distribution_(std::move(distribution)),
       particles_(domain_ ? domain_->dim() : 3),
       options_(std::move(options)),
       rng_(options_.seed),
@@ -133,6 +139,12 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
   validate_own_fields(options_);
   const int dim = domain_->dim();
   const SimulationOptions& o = options_;
+  if (distribution_) {
+    require(o.stepper == StepperKind::Implicit, "stepper", to_string(o.stepper),
+            "a distributed run steps implicitly: must be implicit");
+    require(o.source_rate == 0.0, "source_rate", o.source_rate,
+            "a distributed run has no volumetric source yet (its draws are per particle): must be 0");
+  }
 
   // Conditions, in the order of `boundary`.
   condition_of_patch_.assign(static_cast<std::size_t>(domain_->num_patches()), -1);
@@ -175,6 +187,8 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
   // Reservoir treatment (docs/boundaries.md): Omega_ext = Omega extended by a
   // band of width w over the Dirichlet patches.
   ProjectionOptions po = o.projection;
+  // Over several processes the gathered particles come in another order.
+  if (distribution_) po.draw_by_id = true;
   if (po.dirichlet_mode == DirichletMode::Reservoir && !dirichlet_ids.empty()) {
     try {
       reservoir_domain_ = domain_->extended(dirichlet_ids, po.reservoir_thickness);
@@ -255,7 +269,9 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
   // The quiet reservoir places particles by the density the functional sees.
   if (!walls_.empty()) projection_->set_mirror_walls(walls_);
   try {
-    if (o.stepper == StepperKind::Implicit) {
+    if (distribution_) {
+      distribution_->configure(dim, o.implicit, barrier, periodicity, walls_);
+    } else if (o.stepper == StepperKind::Implicit) {
       implicit_ = std::make_unique<ImplicitStepper>(dim, o.implicit, barrier, periodicity);
       if (!walls_.empty()) implicit_->functional().set_images(WallImages(walls_));
     } else {
@@ -317,7 +333,9 @@ void Simulation::start(ParticleSet particles, Rng rng, double t0) {
           "must equal the domain's dim " + std::to_string(domain_->dim()));
   require(std::isfinite(t0), "t0", t0, "must be finite");
   const std::int64_t cap = max_particles();
-  require(static_cast<std::int64_t>(particles.size()) <= cap, "particles", static_cast<double>(particles.size()),
+  const std::int64_t given = distribution_ ? distribution_->sum(static_cast<std::int64_t>(particles.size()))
+                                            : static_cast<std::int64_t>(particles.size());
+  require(given <= cap, "particles", static_cast<double>(given),
           "must be at most max_particles = " + std::to_string(cap));
   particles_ = std::move(particles);
   rng_ = rng;
@@ -326,8 +344,8 @@ void Simulation::start(ParticleSet particles, Rng rng, double t0) {
   grid_ = TimeGrid{};
   ledger_ = SimulationLedger{};
   totals_ = SimulationTotals{};
-  ledger_.initial_particles = static_cast<std::int64_t>(particles_.size());
-  ledger_.initial_mass = particles_.total_mass();
+  ledger_.initial_particles = given;
+  ledger_.initial_mass = distribution_ ? distribution_->sum(particles_.total_mass()) : particles_.total_mass();
   if (implicit_) implicit_->reset_history();
   initial_ = SimulationStep{};
   initial_.t_start = initial_.t_end = t0;
@@ -339,7 +357,7 @@ void Simulation::start(ParticleSet particles, Rng rng, double t0) {
   // starts empty, as in Algorithm 1.
   if (options_.fill_reservoir_at_start && reservoir_domain_) {
     *step_window_ = {t0, t0};
-    const PatchLedger pl = projection_->apply(particles_, t0, 0.0, rng_);
+    const PatchLedger pl = project(t0, 0.0);
     initial_.inserted = pl.inserted;
     initial_.removed = pl.removed;
     ledger_.inserted += pl.inserted;
@@ -347,6 +365,8 @@ void Simulation::start(ParticleSet particles, Rng rng, double t0) {
     ledger_.mass_inserted += pl.mass_inserted;
     ledger_.mass_removed += pl.mass_removed;
   }
+  // Each particle to its rank, the reservoir's too.
+  if (distribution_) distribution_->redistribute(particles_);
   started_ = true;
 }
 
@@ -386,11 +406,13 @@ SimulationStep Simulation::take_step(double t0, double t1, double max_error) {
     s.inserted += sr.inserted;
     s.removed += sr.removed;
   }
-  // Line 4: diffusion. Nothing to move in an empty set.
-  if (particles_.empty()) {
+  // Line 4: diffusion. Nothing to move in an empty set (over all processes).
+  if (global_size() == 0) {
     s.diffusion = StepSummary{};
     s.diffusion.accepted = true;
     s.diffusion.dt = h;
+  } else if (distribution_) {
+    s.diffusion = distribution_->diffuse(particles_, h);
   } else if (implicit_) {
     s.diffusion = implicit_->step(particles_, h, max_error);
     if (s.diffusion.accepted) history_updated_ = true;
@@ -430,10 +452,12 @@ void Simulation::finish_step(SimulationStep& s) {
   // put back by the projection at once). And after it: the papers' Neumann
   // rule inserts inflow in the outer half of B_l, beyond the wall.
   auto reflect = [&] {
-    if (!walls_.empty()) s.reflected += static_cast<std::int64_t>(reflect_inside(walls_, particles_.positions()));
+    if (walls_.empty()) return;
+    const auto k = static_cast<std::int64_t>(reflect_inside(walls_, particles_.positions()));
+    s.reflected += distribution_ ? distribution_->sum(k) : k;
   };
   reflect();
-  const PatchLedger pl = projection_->apply(particles_, s.t_start, h, rng_);
+  const PatchLedger pl = project(s.t_start, h);
   reflect();
   ledger_.reflected += s.reflected;
   s.inserted += pl.inserted;
@@ -447,16 +471,28 @@ void Simulation::finish_step(SimulationStep& s) {
   time_ = s.t_end;
   step_ = s.step;
   check_ledger(s.step, s.t_end);
+  if (distribution_) distribution_->redistribute(particles_);
+}
+
+PatchLedger Simulation::project(double t, double dt) {
+  if (distribution_) return distribution_->project(*projection_, particles_, t, dt, rng_, max_particles());
+  return projection_->apply(particles_, t, dt, rng_);
+}
+
+std::int64_t Simulation::global_size() const {
+  const auto n = static_cast<std::int64_t>(particles_.size());
+  return distribution_ ? distribution_->sum(n) : n;
 }
 
 void Simulation::check_ledger(std::int64_t k, double t) const {
   const SimulationLedger& l = ledger_;
   const std::int64_t expect_n = l.expected_particles();
-  if (static_cast<std::int64_t>(particles_.size()) != expect_n)
+  const std::int64_t n = global_size();
+  if (n != expect_n)
     throw StepFailure(format("particle ledger violated at step {} (t = {}): n = {} but n(0) + inserted - removed "
                                   "= {} + {} - {} = {}",
-                                  k, t, particles_.size(), l.initial_particles, l.inserted, l.removed, expect_n));
-  const double mass_now = particles_.total_mass();
+                                  k, t, n, l.initial_particles, l.inserted, l.removed, expect_n));
+  const double mass_now = distribution_ ? distribution_->sum(particles_.total_mass()) : particles_.total_mass();
   const double mass_expect = l.expected_mass();
   if (!(std::abs(mass_now - mass_expect) <= 1e-9 * (l.initial_mass + l.mass_inserted + options_.particle_mass)))
     throw StepFailure(format("mass ledger violated at step {} (t = {}): mass = {} but M(0) + inserted - removed "
@@ -578,6 +614,7 @@ SimulationStep Simulation::advance_adaptive(double t_limit) {
   require_started("advance_adaptive");
   require(std::isfinite(t_limit) && t_limit > time_, "t_limit", t_limit,
           format("must be finite and > the current time {}", time_));
+  if (distribution_) throw InvalidArgument("advance_adaptive: a distributed run takes fixed steps (no error estimate yet)");
   if (!implicit_) throw InvalidArgument("stepper = \"explicit\": adaptive steps need the implicit stepper's error estimate");
   require(dt_next_ > 0.0, "next dt", dt_next_, "must be set (set_next_dt) before the first adaptive step");
   return guarded([&] { return advance_adaptive_impl(t_limit); });

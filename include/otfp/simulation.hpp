@@ -166,6 +166,8 @@ enum class RunEnd {
 };
 std::string to_string(RunEnd e);  // "completed" | "max_steps" | "stopped"
 
+class RunDistribution;
+
 class Simulation {
  public:
   // boundary: the data per patch (patches not listed are no-flux walls).
@@ -174,7 +176,23 @@ class Simulation {
   // mirrored walls and the stepper; every check that needs the geometry is
   // done here. Throws SimulationSetupError or InvalidArgument.
   Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> boundary, SimulationOptions options);
+  // A run over several processes (otfp/run_distribution.hpp; MpiDistribution
+  // in otfp::mpi): every process builds the Simulation with the same
+  // arguments and its own distribution object, and holds a share of the
+  // particles (start() takes any split; particles() is this process's share;
+  // measure() and blob_mass() measure the share). The steps, projections and
+  // ledger are those of the serial run on the union (the projection draws
+  // its random deletions by id). Refused (InvalidArgument naming the field):
+  // the explicit stepper, a volumetric source, and what the distributed step
+  // refuses (a backend other than TAO, BDF2, a predictor); advance_adaptive()
+  // is not offered yet. Collective: the constructor, start(), every step and
+  // the checkpoints.
+  Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> boundary, SimulationOptions options,
+             std::shared_ptr<RunDistribution> distribution);
   ~Simulation();
+  bool distributed() const { return distribution_ != nullptr; }
+  // The particle count over all processes (particles().size() when serial; collective).
+  std::int64_t global_size() const;
   Simulation(const Simulation&) = delete;
   Simulation& operator=(const Simulation&) = delete;
 
@@ -292,8 +310,10 @@ class Simulation {
   void check_ledger(std::int64_t step, double t) const;
   void require_started(const char* what) const;
 
+  PatchLedger project(double t, double dt);  // the projection, serial or over the distribution
   DomainPtr domain_;
   std::vector<ConstantBoundaryData> boundary_;
+  std::shared_ptr<RunDistribution> distribution_;
   ParticleSet particles_;
   SimulationOptions options_;
   Rng rng_;

@@ -1,0 +1,54 @@
+#pragma once
+// How one Simulation runs over several processes, each holding a share of
+// the particles (docs/distributed.md). The serial library only defines the
+// interface; the component otfp::mpi implements it on MPI and PETSc
+// (otfp/mpi_distribution.hpp: MpiDistribution). A Simulation given one
+// keeps its single time loop and hands it the three steps that need the
+// other processes' particles - the diffusive step, the boundary projection
+// and the redistribution of particles - and the global sums of its ledger
+// checks. Everything else (advection, reflection at mirrored walls, the
+// ledger, the time grid) runs on each process's share as it runs serially.
+#include <cstdint>
+#include <vector>
+
+#include "otfp/barrier.hpp"
+#include "otfp/boundary.hpp"
+#include "otfp/images.hpp"
+#include "otfp/implicit_stepper.hpp"
+#include "otfp/particles.hpp"
+#include "otfp/step_summary.hpp"
+
+namespace otfp {
+
+class RunDistribution {
+ public:
+  virtual ~RunDistribution() = default;
+
+  // Once, from the Simulation's constructor: the diffusive step's problem
+  // (the options, the barrier, periodic axes and the mirrored walls whose
+  // image blobs the functional sums). Throws InvalidArgument naming the
+  // field for what a distributed step cannot do.
+  virtual void configure(int dim, const ImplicitOptions& options, const Barrier& barrier,
+                         const Periodicity& periodicity, const std::vector<MirrorWallPtr>& walls) = 0;
+
+  // The implicit step of the union of the shares, on this process's share
+  // (collective; accepted or refused on every process alike).
+  virtual StepSummary diffuse(ParticleSet& owned, double dt) = 0;
+
+  // projection.apply(union, t, dt, rng) as a serial run would do it: every
+  // process's projection state, `rng` and returned ledger advance alike, and
+  // this share loses the particles the projection removes and gains the
+  // inserted ones this process owns. `max_particles` is the global cap.
+  virtual PatchLedger project(BoundaryProjection& projection, ParticleSet& owned, double t, double dt, Rng& rng,
+                              std::int64_t max_particles) = 0;
+
+  // Each particle to the process that owns its position (after a step and
+  // at the start; collective).
+  virtual void redistribute(ParticleSet& owned) = 0;
+
+  // Sums over the processes (collective).
+  virtual double sum(double v) = 0;
+  virtual std::int64_t sum(std::int64_t v) = 0;
+};
+
+}  // namespace otfp

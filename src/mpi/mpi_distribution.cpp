@@ -1,0 +1,198 @@
+// A Simulation over the ranks of the MPI world (otfp/mpi_distribution.hpp).
+#include "otfp/mpi_distribution.hpp"
+
+#include <mpi.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <numeric>
+
+#include "otfp/mpi.hpp"
+#include "otfp/types.hpp"
+#include "petsc_session.hpp"
+
+namespace otfp {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+MPI_Comm world() {
+  detail::ensure_petsc();
+  return PETSC_COMM_WORLD;
+}
+
+// The particles `which` of every rank's `part`, on every rank, in id order.
+ParticleSet gather(const ParticleSet& part, const std::vector<std::size_t>& which, MPI_Comm comm) {
+  constexpr int kDoubles = 6;  // x, y, z, s, m, birth
+  int size = 1;
+  MPI_Comm_size(comm, &size);
+  std::vector<double> mine;
+  std::vector<std::int64_t> mine_ids;
+  mine.reserve(which.size() * kDoubles);
+  for (std::size_t p : which) {
+    const Vec3& y = part.positions()[p];
+    mine.insert(mine.end(), {y[0], y[1], y[2], part.widths()[p], part.masses()[p], part.birth_times()[p]});
+    mine_ids.push_back(part.ids()[p]);
+  }
+  const int n_mine = static_cast<int>(which.size());
+  std::vector<int> counts(static_cast<std::size_t>(size)), offsets(static_cast<std::size_t>(size), 0);
+  MPI_Allgather(&n_mine, 1, MPI_INT, counts.data(), 1, MPI_INT, comm);
+  for (std::size_t r = 1; r < counts.size(); ++r) offsets[r] = offsets[r - 1] + counts[r - 1];
+  const auto n = static_cast<std::size_t>(offsets.back() + counts.back());
+  std::vector<std::int64_t> ids(n);
+  MPI_Allgatherv(mine_ids.data(), n_mine, MPI_INT64_T, ids.data(), counts.data(), offsets.data(), MPI_INT64_T, comm);
+  for (std::size_t r = 0; r < counts.size(); ++r) {
+    counts[r] *= kDoubles;
+    offsets[r] *= kDoubles;
+  }
+  std::vector<double> all(n * kDoubles);
+  MPI_Allgatherv(mine.data(), n_mine * kDoubles, MPI_DOUBLE, all.data(), counts.data(), offsets.data(), MPI_DOUBLE,
+                 comm);
+  std::vector<std::size_t> order(n);
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
+  ParticleSet out(part.dim());
+  out.reserve(n);
+  for (std::size_t k : order) {
+    const double* v = &all[k * kDoubles];
+    out.add_with_id(ids[k], Vec3(v[0], v[1], v[2]), v[3], v[4], v[5]);  // refuses an id held by two ranks
+  }
+  return out;
+}
+
+}  // namespace
+
+void MpiDistributionOptions::validate() const {
+  require(std::isfinite(rebalance_tolerance) && rebalance_tolerance >= 0.0, "rebalance_tolerance",
+          rebalance_tolerance, "must be finite and >= 0");
+}
+
+MpiDistribution::MpiDistribution(MpiDistributionOptions options) : options_(options) {
+  options_.validate();
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  world();
+}
+
+MpiDistribution::~MpiDistribution() = default;
+
+int MpiDistribution::rank() const { return world_rank(); }
+int MpiDistribution::size() const { return world_size(); }
+
+void MpiDistribution::configure(int dim, const ImplicitOptions& options, const Barrier& barrier,
+                                const Periodicity& periodicity, const std::vector<MirrorWallPtr>& walls) {
+  dim_ = dim;
+  stepper_ = std::make_unique<DistributedImplicitStepper>(dim, options, barrier, periodicity);
+  if (!walls.empty()) stepper_->functional().set_images(WallImages(walls));
+}
+
+StepSummary MpiDistribution::diffuse(ParticleSet& owned, double dt) {
+  require(stepper_ != nullptr, "MpiDistribution", 0.0, "configure() must come first (the Simulation calls it)");
+  return stepper_->step(owned, dt);
+}
+
+const ExchangeStats& MpiDistribution::exchange() const {
+  static const ExchangeStats none;
+  return stepper_ ? stepper_->exchange() : none;
+}
+
+double MpiDistribution::sum(double v) {
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  double out = 0.0;
+  MPI_Allreduce(&v, &out, 1, MPI_DOUBLE, MPI_SUM, world());
+  return out;
+}
+
+std::int64_t MpiDistribution::sum(std::int64_t v) {
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  std::int64_t out = 0;
+  MPI_Allreduce(&v, &out, 1, MPI_INT64_T, MPI_SUM, world());
+  return out;
+}
+
+PatchLedger MpiDistribution::project(BoundaryProjection& projection, ParticleSet& owned, double t, double dt,
+                                     Rng& rng, std::int64_t max_particles) {
+  const auto t0 = Clock::now();
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  const MPI_Comm comm = world();
+  // What the projection reads, by the largest width anywhere.
+  double s_max = 0.0;
+  for (double s : owned.widths()) s_max = std::max(s_max, s);
+  MPI_Allreduce(MPI_IN_PLACE, &s_max, 1, MPI_DOUBLE, MPI_MAX, comm);
+  std::vector<std::size_t> near;
+  for (std::size_t p = 0; p < owned.size(); ++p)
+    if (projection.reads(owned.positions()[p], s_max)) near.push_back(p);
+  ParticleSet band = gather(owned, near, comm);
+  std::int64_t next = owned.next_id(), n_global = static_cast<std::int64_t>(owned.size());
+  MPI_Allreduce(MPI_IN_PLACE, &next, 1, MPI_INT64_T, MPI_MAX, comm);
+  MPI_Allreduce(MPI_IN_PLACE, &n_global, 1, MPI_INT64_T, MPI_SUM, comm);
+  next = std::max<std::int64_t>(next, band.next_id());
+  band.set_next_id(next);
+
+  // The same call on every rank, with the global cap: the particles it does
+  // not see count against it too. Its errors (a cap exceeded, bad data) are
+  // every rank's alike.
+  const std::int64_t cap = projection.max_particles();
+  projection.set_max_particles(max_particles - (n_global - static_cast<std::int64_t>(band.size())));
+  PatchLedger ledger;
+  try {
+    ledger = projection.apply(band, t, dt, rng);
+  } catch (...) {
+    projection.set_max_particles(cap);
+    throw;
+  }
+  projection.set_max_particles(cap);
+
+  // This share: without its removed particles, with the inserted ones it owns.
+  std::vector<std::size_t> gone;
+  for (std::size_t p : near)
+    if (band.index_of(owned.ids()[p]) < 0) gone.push_back(p);
+  owned.remove_indices(std::move(gone));
+  const int me = rank();
+  for (std::size_t p = 0; p < band.size(); ++p) {
+    if (band.ids()[p] < next) continue;
+    const Vec3& y = band.positions()[p];
+    if ((layout_ ? layout_->owner(y) : 0) != me) continue;
+    owned.add_with_id(band.ids()[p], y, band.widths()[p], band.masses()[p], band.birth_times()[p]);
+  }
+  owned.set_next_id(band.next_id());
+  ++stats_.projections;
+  stats_.gathered = static_cast<std::int64_t>(band.size());
+  stats_.projection_seconds += seconds_since(t0);
+  return ledger;
+}
+
+void MpiDistribution::redistribute(ParticleSet& owned) {
+  const auto t0 = Clock::now();
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  const MPI_Comm comm = world();
+  std::int64_t counts[2] = {static_cast<std::int64_t>(owned.size()), static_cast<std::int64_t>(owned.size())};
+  MPI_Allreduce(MPI_IN_PLACE, &counts[0], 1, MPI_INT64_T, MPI_MAX, comm);
+  MPI_Allreduce(MPI_IN_PLACE, &counts[1], 1, MPI_INT64_T, MPI_SUM, comm);
+  if (counts[1] == 0) return;  // nothing anywhere: no regions yet (the projection's first particles go to rank 0)
+  const double mean = static_cast<double>(counts[1]) / static_cast<double>(size());
+  if (!layout_ || static_cast<double>(counts[0]) > (1.0 + options_.rebalance_tolerance) * mean) {
+    layout_ = std::make_unique<BisectionLayout>(balanced_bisection(owned.positions(), dim_));
+    ++stats_.rebalances;
+  }
+  stats_.migrated_out += static_cast<std::int64_t>(migrate(owned, *layout_));
+  stats_.redistribution_seconds += seconds_since(t0);
+}
+
+ParticleSet all_particles(const ParticleSet& owned) {
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  std::vector<std::size_t> every(owned.size());
+  std::iota(every.begin(), every.end(), std::size_t{0});
+  ParticleSet out = gather(owned, every, world());
+  std::int64_t next = owned.next_id();
+  MPI_Allreduce(MPI_IN_PLACE, &next, 1, MPI_INT64_T, MPI_MAX, world());
+  out.set_next_id(std::max<std::int64_t>(next, out.next_id()));
+  return out;
+}
+
+}  // namespace otfp
