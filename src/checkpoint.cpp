@@ -1,6 +1,7 @@
 // Simulation::save_checkpoint and load_checkpoint (the rest of Simulation is
 // in simulation.cpp).
 #include "otfp/simulation.hpp"
+#include "otfp/run_distribution.hpp"
 
 #include "file_read.hpp"
 
@@ -11,6 +12,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <exception>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
@@ -269,8 +271,31 @@ std::string Simulation::checkpoint_extra(const std::filesystem::path& path) {
   return b.get_string();
 }
 
+// Over several processes: the union of the shares (in id order) is written
+// by the root process, and every process learns whether it succeeded; a
+// checkpoint so does not depend on the number of processes that wrote it.
 void Simulation::save_checkpoint(const std::filesystem::path& path, const std::string& extra) const {
   require_started("save_checkpoint");
+  if (!distribution_) {
+    write_checkpoint(path, extra, particles_);
+    return;
+  }
+  const ParticleSet all = distribution_->gather(particles_);
+  std::exception_ptr failed;
+  if (distribution_->root()) {
+    try {
+      write_checkpoint(path, extra, all);
+    } catch (...) {
+      failed = std::current_exception();
+    }
+  }
+  if (distribution_->sum(std::int64_t{failed ? 1 : 0}) == 0) return;
+  if (failed) std::rethrow_exception(failed);
+  throw std::runtime_error("cannot write checkpoint " + path.string() + " (the writing process names the cause)");
+}
+
+void Simulation::write_checkpoint(const std::filesystem::path& path, const std::string& extra,
+                                  const ParticleSet& particles) const {
   Writer w;
   w.bytes().append(kMagic, sizeof(kMagic));
   w.put(static_cast<std::int32_t>(domain_->dim()));
@@ -283,14 +308,14 @@ void Simulation::save_checkpoint(const std::filesystem::path& path, const std::s
   w.put(step_);
   w.put(dt_next_);
   // Particles, in their current order (the order is part of the state).
-  w.put(static_cast<std::uint64_t>(particles_.size()));
-  w.put(particles_.next_id());
-  for (std::size_t p = 0; p < particles_.size(); ++p) {
-    w.put(particles_.ids()[p]);
-    w.put_vec(particles_.positions()[p]);
-    w.put(particles_.widths()[p]);
-    w.put(particles_.masses()[p]);
-    w.put(particles_.birth_times()[p]);
+  w.put(static_cast<std::uint64_t>(particles.size()));
+  w.put(particles.next_id());
+  for (std::size_t p = 0; p < particles.size(); ++p) {
+    w.put(particles.ids()[p]);
+    w.put_vec(particles.positions()[p]);
+    w.put(particles.widths()[p]);
+    w.put(particles.masses()[p]);
+    w.put(particles.birth_times()[p]);
   }
   const Rng::State rs = rng_.state();
   for (std::uint64_t v : rs.s) w.put(v);
@@ -350,7 +375,44 @@ void Simulation::save_checkpoint(const std::filesystem::path& path, const std::s
   }
 }
 
+// Over several processes: every process reads the file; the root keeps the
+// particles and they are redistributed, so a checkpoint loads on any number
+// of processes. A file that fails to load on one fails on all, each with its
+// state as it was.
 void Simulation::load_checkpoint(const std::filesystem::path& path, std::string* extra) {
+  if (!distribution_) {
+    load_checkpoint_file(path, extra);
+    return;
+  }
+  const bool was_started = started_;
+  const TimeGrid grid = grid_;
+  const SimulationStep initial = initial_;
+  save_state();
+  std::exception_ptr failed;
+  try {
+    load_checkpoint_file(path, extra);
+  } catch (...) {
+    failed = std::current_exception();
+  }
+  if (distribution_->sum(std::int64_t{failed ? 1 : 0}) > 0) {
+    if (!failed) {
+      restore_state();
+      started_ = was_started;
+      grid_ = grid;
+      initial_ = initial;
+    }
+    if (failed) std::rethrow_exception(failed);
+    throw InvalidArgument("checkpoint " + path.string() + ": another process could not load it (its error names the cause)");
+  }
+  if (!distribution_->root()) {
+    const ParticleId next = particles_.next_id();
+    particles_ = ParticleSet(domain_->dim());
+    particles_.set_next_id(next);
+  }
+  distribution_->redistribute(particles_);
+}
+
+void Simulation::load_checkpoint_file(const std::filesystem::path& path, std::string* extra) {
   const std::string body = read_verified(path);
   Reader b(body, path.string());
   for (std::size_t i = 0; i < sizeof(kMagic); ++i) b.get<char>();

@@ -10,7 +10,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <string>
 #include <vector>
+
+#include <unistd.h>
 
 #include "otfp/decomposition.hpp"
 #include "otfp/distributed_functional.hpp"
@@ -780,6 +783,114 @@ TEST(DistributedSimulation, BoxMatchesTheSerialTaoRun) {
   const RunComparison r = compare_runs(box, {{0, PatchKind::Dirichlet, 500.0}}, 400, 10, TreatmentPreset::Converging, 1.0);
   expect_same_run(r);
   EXPECT_LT(r.gathered, r.n);
+}
+
+// Checkpoints do not depend on the rank count: one written by a distributed
+// run resumes serially (np = N -> 1), and one written by the serial run
+// resumes distributed (1 -> N); both end where the uninterrupted serial run
+// ends, particle by particle.
+TEST(DistributedSimulation, ACheckpointResumesOnAnyRankCount) {
+  register_tao_backend();
+  const DomainPtr box = make_box(3, Vec3::Zero(), Vec3(2.0, 1.0, 1.0));
+  const std::vector<ConstantBoundaryData> data{{0, PatchKind::Dirichlet, 500.0}};
+  RunSetupOptions ro;
+  ro.n_inf = 300;
+  const RunSetup setup = setup_run(*box, data, ro);
+  SimulationOptions o = setup.options;
+  o.implicit.minimizer.backend = Backend::Tao;
+  o.projection.draw_by_id = true;
+  const double dt = setup.parameters.dt;
+  const int half = 4, steps = 8;
+  // One name on every rank: rank 0's process id.
+  long long tag = static_cast<long long>(::getpid());
+  MPI_Bcast(&tag, 1, MPI_LONG_LONG, 0, MPI_COMM_WORLD);
+  const std::string dist_file = "/tmp/otfp_test_dist_" + std::to_string(tag) + ".ckpt";
+  const std::string serial_file = "/tmp/otfp_test_serial_" + std::to_string(tag) + ".ckpt";
+
+  Simulation reference(box, data, o);
+  reference.start(ParticleSet(3));
+  for (int k = 1; k <= steps; ++k) {
+    reference.advance_to(k * dt);
+    if (k == half && world_rank() == 0) reference.save_checkpoint(serial_file);
+  }
+  MPI_Barrier(MPI_COMM_WORLD);
+
+  Simulation dist(box, data, o, std::make_shared<MpiDistribution>());
+  dist.start(ParticleSet(3));
+  for (int k = 1; k <= half; ++k) dist.advance_to(k * dt);
+  dist.save_checkpoint(dist_file);  // collective: rank 0 writes
+
+  Simulation serial_resumed(box, data, o);  // N -> 1
+  serial_resumed.load_checkpoint(dist_file);
+  Simulation dist_resumed(box, data, o, std::make_shared<MpiDistribution>());  // 1 -> N
+  dist_resumed.load_checkpoint(serial_file);
+  EXPECT_EQ(dist_resumed.step_count(), half);
+  EXPECT_EQ(dist_resumed.global_size(), static_cast<std::int64_t>(serial_resumed.particles().size()));
+  for (int k = half + 1; k <= steps; ++k) {
+    serial_resumed.advance_to(k * dt);
+    dist_resumed.advance_to(k * dt);
+  }
+  const ParticleSet& a = reference.particles();
+  const double size = std::sqrt(6.0);
+  auto largest_difference = [&](const ParticleSet& b) {
+    EXPECT_EQ(a.size(), b.size());
+    double dx = 0.0;
+    for (std::size_t p = 0; p < a.size(); ++p) {
+      const std::ptrdiff_t q = b.index_of(a.ids()[p]);
+      EXPECT_GE(q, 0) << "particle " << a.ids()[p] << " missing";
+      if (q >= 0) dx = std::max(dx, (a.positions()[p] - b.positions()[static_cast<std::size_t>(q)]).norm() / size);
+    }
+    return dx;
+  };
+  const double dx_serial = largest_difference(serial_resumed.particles());
+  const double dx_dist = largest_difference(all_particles(dist_resumed.particles()));
+  EXPECT_EQ(serial_resumed.ledger().inserted, reference.ledger().inserted);
+  EXPECT_EQ(dist_resumed.ledger().inserted, reference.ledger().inserted);
+  EXPECT_EQ(dist_resumed.ledger().removed, reference.ledger().removed);
+  EXPECT_GT(reference.ledger().inserted, 0);
+  if (world_rank() == 0)
+    std::printf("  %d ranks: resumed at step %d of %d: serial from the distributed checkpoint %.2g, distributed "
+                "from the serial one %.2g of the domain's size\n",
+                world_size(), half, steps, dx_serial, dx_dist);
+  EXPECT_LT(dx_serial, 1e-9);
+  EXPECT_LT(dx_dist, 1e-9);
+  MPI_Barrier(MPI_COMM_WORLD);
+  if (world_rank() == 0) {
+    std::remove(dist_file.c_str());
+    std::remove(serial_file.c_str());
+  }
+}
+
+// What a distributed run does not do yet is refused by name.
+TEST(DistributedSimulation, RefusesWhatItDoesNotDoYet) {
+  register_tao_backend();
+  const DomainPtr box = make_box(3, Vec3::Zero(), Vec3(2.0, 1.0, 1.0));
+  const std::vector<ConstantBoundaryData> data{{0, PatchKind::Dirichlet, 500.0}};
+  RunSetupOptions ro;
+  ro.n_inf = 300;
+  SimulationOptions o = setup_run(*box, data, ro).options;
+  o.implicit.minimizer.backend = Backend::Tao;
+  auto expect_refused = [&](const SimulationOptions& bad, const std::string& field) {
+    try {
+      Simulation sim(box, data, bad, std::make_shared<MpiDistribution>());
+      ADD_FAILURE() << field << " was accepted";
+    } catch (const InvalidArgument& e) {
+      EXPECT_NE(std::string(e.what()).find(field), std::string::npos) << e.what();
+    }
+  };
+  SimulationOptions ceres = o;
+  ceres.implicit.minimizer.backend = Backend::Ceres;
+  expect_refused(ceres, "backend");
+  SimulationOptions source = o;
+  source.source_rate = 1.0;
+  expect_refused(source, "source_rate");
+  SimulationOptions expl = o;
+  expl.stepper = StepperKind::Explicit;
+  expect_refused(expl, "stepper");
+  Simulation sim(box, data, o, std::make_shared<MpiDistribution>());
+  sim.start(ParticleSet(3));
+  sim.set_next_dt(1e-3);
+  EXPECT_THROW(sim.advance_adaptive(1.0), InvalidArgument);
 }
 
 int main(int argc, char** argv) {

@@ -58,6 +58,8 @@ class MpiDistribution final : public RunDistribution {
   PatchLedger project(BoundaryProjection& projection, ParticleSet& owned, double t, double dt, Rng& rng,
                       std::int64_t max_particles) override;
   void redistribute(ParticleSet& owned) override;
+  ParticleSet gather(const ParticleSet& owned) override;  // all_particles(owned)
+  bool root() const override;                             // rank 0
   double sum(double v) override;
   std::int64_t sum(std::int64_t v) override;
 

@@ -46,6 +46,11 @@ class RunDistribution {
   // at the start; collective).
   virtual void redistribute(ParticleSet& owned) = 0;
 
+  // The union of the shares, in id order, on every process (collective;
+  // checkpoints), and whether this process is the one that writes files.
+  virtual ParticleSet gather(const ParticleSet& owned) = 0;
+  virtual bool root() const = 0;
+
   // Sums over the processes (collective).
   virtual double sum(double v) = 0;
   virtual std::int64_t sum(std::int64_t v) = 0;

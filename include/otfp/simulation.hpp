@@ -311,6 +311,9 @@ class Simulation {
   void require_started(const char* what) const;
 
   PatchLedger project(double t, double dt);  // the projection, serial or over the distribution
+  void write_checkpoint(const std::filesystem::path& path, const std::string& extra,
+                        const ParticleSet& particles) const;
+  void load_checkpoint_file(const std::filesystem::path& path, std::string* extra);
   DomainPtr domain_;
   std::vector<ConstantBoundaryData> boundary_;
   std::shared_ptr<RunDistribution> distribution_;

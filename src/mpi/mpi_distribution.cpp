@@ -28,7 +28,7 @@ MPI_Comm world() {
 }
 
 // The particles `which` of every rank's `part`, on every rank, in id order.
-ParticleSet gather(const ParticleSet& part, const std::vector<std::size_t>& which, MPI_Comm comm) {
+ParticleSet gather_union(const ParticleSet& part, const std::vector<std::size_t>& which, MPI_Comm comm) {
   constexpr int kDoubles = 6;  // x, y, z, s, m, birth
   int size = 1;
   MPI_Comm_size(comm, &size);
@@ -101,6 +101,9 @@ const ExchangeStats& MpiDistribution::exchange() const {
   return stepper_ ? stepper_->exchange() : none;
 }
 
+ParticleSet MpiDistribution::gather(const ParticleSet& owned) { return all_particles(owned); }
+bool MpiDistribution::root() const { return rank() == 0; }
+
 double MpiDistribution::sum(double v) {
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   double out = 0.0;
@@ -127,7 +130,7 @@ PatchLedger MpiDistribution::project(BoundaryProjection& projection, ParticleSet
   std::vector<std::size_t> near;
   for (std::size_t p = 0; p < owned.size(); ++p)
     if (projection.reads(owned.positions()[p], s_max)) near.push_back(p);
-  ParticleSet band = gather(owned, near, comm);
+  ParticleSet band = gather_union(owned, near, comm);
   std::int64_t next = owned.next_id(), n_global = static_cast<std::int64_t>(owned.size());
   MPI_Allreduce(MPI_IN_PLACE, &next, 1, MPI_INT64_T, MPI_MAX, comm);
   MPI_Allreduce(MPI_IN_PLACE, &n_global, 1, MPI_INT64_T, MPI_SUM, comm);
@@ -188,7 +191,7 @@ ParticleSet all_particles(const ParticleSet& owned) {
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   std::vector<std::size_t> every(owned.size());
   std::iota(every.begin(), every.end(), std::size_t{0});
-  ParticleSet out = gather(owned, every, world());
+  ParticleSet out = gather_union(owned, every, world());
   std::int64_t next = owned.next_id();
   MPI_Allreduce(MPI_IN_PLACE, &next, 1, MPI_INT64_T, MPI_MAX, world());
   out.set_next_id(std::max<std::int64_t>(next, out.next_id()));
