@@ -17,6 +17,7 @@ const char* const kModeScaleRule = "the initial amplitude a(0)";
 
 class CosineModeReference : public Reference {
  public:
+  bool uses_particles() const override { return true; }
   explicit CosineModeReference(const ReferenceSetup& setup) : setup_(setup) {
     require(std::isfinite(setup.wavenumber) && setup.wavenumber > 0.0, "cosine_mode wavenumber", setup.wavenumber,
             "must be finite and > 0");

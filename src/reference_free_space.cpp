@@ -14,6 +14,7 @@ const char* const kMomentScaleRule = "2 d kappa M t_end (the reference growth ov
 
 class FreeSpaceReference : public Reference {
  public:
+  bool uses_particles() const override { return true; }
   explicit FreeSpaceReference(const ReferenceSetup& setup) : setup_(setup) {
     require(setup.dim >= 1 && setup.dim <= 3, "reference dim", setup.dim, "must be 1, 2 or 3");
   }

@@ -16,6 +16,7 @@
 #include <unistd.h>
 
 #include "otfp/barrier.hpp"
+#include "otfp/density.hpp"
 #include "otfp/fractional.hpp"
 #include "otfp/images.hpp"
 #include "otfp/neighbor_list.hpp"
@@ -288,6 +289,11 @@ Simulation::~Simulation() = default;
 int Simulation::mirrored_walls() const { return static_cast<int>(walls_.size()); }
 
 double Simulation::blob_mass(const BlobMassOptions& options) const {
+  const double mine = share_blob_mass(options);
+  return distribution_ ? distribution_->sum(mine) : mine;
+}
+
+double Simulation::share_blob_mass(const BlobMassOptions& options) const {
   double mass = blob_mass_in_domain(*domain_, particles_, options);
   if (walls_.empty() || particles_.empty()) return mass;
   // Images within the measure's own cut-off of a wall (beyond it a blob has
@@ -316,7 +322,46 @@ int Simulation::condition_of(int patch) const {
 }
 
 StateMeasures Simulation::measure(const Vec3& center, std::vector<std::int32_t>* region) const {
-  return measure_state(*domain_, buffer_, particles_, center, time_, region);
+  StateMeasures r = measure_state(*domain_, buffer_, particles_, center, time_, region);
+  if (!distribution_) return r;
+  RunDistribution& d = *distribution_;
+  const double age_sum = r.mean_age * static_cast<double>(r.n_particles);
+  for (std::int64_t* v : {&r.n_particles, &r.n_inside, &r.n_buffer, &r.n_outside}) *v = d.sum(*v);
+  for (double* v : {&r.mass_total, &r.mass_inside, &r.mass_with_layer, &r.polar_inertia, &r.polar_inertia_with_layer,
+                    &r.polar_inertia_total})
+    *v = d.sum(*v);
+  r.mean_age = r.n_particles > 0 ? d.sum(age_sum) / static_cast<double>(r.n_particles) : d.sum(0.0);
+  r.max_age = d.max(r.max_age);  // an empty share reports 0, and ages are >= 0
+  return r;
+}
+
+std::vector<double> Simulation::particle_density(double kernel_tolerance) const {
+  const Periodicity per = domain_->is_periodic() ? Periodicity::from_domain(*domain_) : Periodicity::none(domain_->dim());
+  std::vector<double> rho;
+  if (!distribution_) {
+    if (!particles_.empty()) blob_density(particles_, particles_.positions(), per, kernel_tolerance, rho, nullptr);
+    return rho;
+  }
+  // This share and the other processes' blobs within the largest cut-off.
+  double s_max = 0.0;
+  for (double s : particles_.widths()) s_max = std::max(s_max, s);
+  s_max = distribution_->max(s_max);
+  ParticleSet blobs = particles_;
+  const ParticleSet others = distribution_->nearby(particles_, cutoff_radius(s_max, kernel_tolerance), per);
+  for (std::size_t p = 0; p < others.size(); ++p)
+    blobs.add(others.positions()[p], others.widths()[p], others.masses()[p]);
+  if (!particles_.empty()) blob_density(blobs, particles_.positions(), per, kernel_tolerance, rho, nullptr);
+  return rho;
+}
+
+ParticleSet Simulation::gathered_particles() const { return distribution_ ? distribution_->gather(particles_) : particles_; }
+
+bool Simulation::root_process() const { return !distribution_ || distribution_->root(); }
+int Simulation::process_rank() const { return distribution_ ? distribution_->rank() : 0; }
+int Simulation::process_count() const { return distribution_ ? distribution_->size() : 1; }
+
+bool Simulation::any_process(bool v) const {
+  return distribution_ ? distribution_->sum(std::int64_t{v ? 1 : 0}) > 0 : v;
 }
 
 void Simulation::set_next_dt(double dt) {

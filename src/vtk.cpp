@@ -105,6 +105,24 @@ std::string pvd_document(const std::vector<std::pair<double, std::string>>& entr
   return xml;
 }
 
+std::string pvtp_document(const std::vector<std::string>& pieces) {
+  // The arrays of vtp_document's pieces, region and density included.
+  std::string xml = "<?xml version=\"1.0\"?>\n";
+  xml += "<VTKFile type=\"PPolyData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";
+  xml += "  <PPolyData GhostLevel=\"0\">\n";
+  xml += "    <PPointData Scalars=\"age\">\n";
+  for (const char* name : {"mass", "beta", "width_s", "age"})
+    xml += fmt::format("      <PDataArray type=\"Float64\" Name=\"{}\" NumberOfComponents=\"1\"/>\n", name);
+  xml += "      <PDataArray type=\"Int64\" Name=\"id\" NumberOfComponents=\"1\"/>\n";
+  xml += "      <PDataArray type=\"Int32\" Name=\"region\" NumberOfComponents=\"1\"/>\n";
+  xml += "      <PDataArray type=\"Float64\" Name=\"density\" NumberOfComponents=\"1\"/>\n";
+  xml += "    </PPointData>\n";
+  xml += "    <PPoints>\n      <PDataArray type=\"Float64\" Name=\"position\" NumberOfComponents=\"3\"/>\n    </PPoints>\n";
+  for (const std::string& piece : pieces) xml += fmt::format("    <Piece Source=\"{}\"/>\n", xml_escaped(piece));
+  xml += "  </PPolyData>\n</VTKFile>\n";
+  return xml;
+}
+
 namespace {
 // A file name as Python source: os.fsdecode of a bytes literal, so that any
 // bytes (quotes, backslashes, newlines, non-UTF-8 names) survive.

@@ -60,13 +60,15 @@ class MpiDistribution final : public RunDistribution {
   void redistribute(ParticleSet& owned) override;
   ParticleSet gather(const ParticleSet& owned) override;  // all_particles(owned)
   bool root() const override;                             // rank 0
+  ParticleSet nearby(const ParticleSet& owned, double radius, const Periodicity& periodicity) override;
+  double max(double v) override;
   double sum(double v) override;
   std::int64_t sum(std::int64_t v) override;
 
   const MpiDistributionStats& stats() const { return stats_; }
   const ExchangeStats& exchange() const;  // the diffusive steps' halo exchanges
-  int rank() const;
-  int size() const;
+  int rank() const override;
+  int size() const override;
 
  private:
   MpiDistributionOptions options_;

@@ -141,6 +141,9 @@ class Reference {
   virtual std::vector<std::string> columns() const = 0;  // the series columns of ReferenceRow::values
   // A column error_mass_blob (M_rho / M_inf against the mass reference).
   virtual bool has_mass_blob_error() const { return false; }
+  // Whether row() reads ReferenceSample::particles (all of them: a
+  // distributed run gathers them for it).
+  virtual bool uses_particles() const { return false; }
 
   // The row of sample.t: rows come in time order, the first at the run's
   // start (free_space and cosine_mode take their initial values from it).

@@ -50,6 +50,16 @@ class RunDistribution {
   // checkpoints), and whether this process is the one that writes files.
   virtual ParticleSet gather(const ParticleSet& owned) = 0;
   virtual bool root() const = 0;
+  virtual int rank() const = 0;  // this process's index, 0 ... size() - 1
+  virtual int size() const = 0;  // the number of processes
+
+  // The other processes' particles within `radius` of this process's (of
+  // their bounding box; periodic axes by the nearest image), for sums over
+  // neighbours such as the blob density at the particles (collective).
+  virtual ParticleSet nearby(const ParticleSet& owned, double radius, const Periodicity& periodicity) = 0;
+
+  // The largest value over the processes (collective).
+  virtual double max(double v) = 0;
 
   // Sums over the processes (collective).
   virtual double sum(double v) = 0;

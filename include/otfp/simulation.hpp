@@ -254,7 +254,8 @@ class Simulation {
   // condition_of(patch) gives the index or -1.
   const BoundaryProjection& projection() const { return *projection_; }
   int condition_of(int patch) const;
-  // The particles' regions and the sums (43)-(44) about `center`.
+  // The particles' regions and the sums (43)-(44) about `center` (over all
+  // processes when distributed: collective; `region` is this process's).
   const BufferSpec& buffer() const { return buffer_; }
   StateMeasures measure(const Vec3& center, std::vector<std::int32_t>* region = nullptr) const;
   // The band of the reservoir treatment (null for the papers' layer).
@@ -269,7 +270,20 @@ class Simulation {
   // crossed smoothly. Layers of particles that settle parallel to a face move
   // the count of centres (43) by a fraction of a layer; this measure does not
   // see where the layers fall (docs/boundaries.md, "Quiet reservoir").
+  // (Over all processes when distributed: collective.)
   double blob_mass(const BlobMassOptions& options = {}) const;
+  // The blob density (29) at this process's particles, of all particles
+  // (images not included; collective when distributed).
+  std::vector<double> particle_density(double kernel_tolerance) const;
+  // Over several processes: the union of the shares in id order (a copy of
+  // particles() when serial), whether this is the process that writes
+  // files (true when serial), and whether v holds on any process (all
+  // collective).
+  ParticleSet gathered_particles() const;
+  bool root_process() const;
+  bool any_process(bool v) const;
+  int process_rank() const;   // 0 when serial
+  int process_count() const;  // 1 when serial
   ImplicitStepper* implicit_stepper() { return implicit_.get(); }
   ExplicitStepper* explicit_stepper() { return explicit_.get(); }
 
@@ -311,6 +325,7 @@ class Simulation {
   void require_started(const char* what) const;
 
   PatchLedger project(double t, double dt);  // the projection, serial or over the distribution
+  double share_blob_mass(const BlobMassOptions& options) const;  // blob_mass() of this process's particles
   void write_checkpoint(const std::filesystem::path& path, const std::string& extra,
                         const ParticleSet& particles) const;
   void load_checkpoint_file(const std::filesystem::path& path, std::string* extra);

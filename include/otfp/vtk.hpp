@@ -22,6 +22,11 @@ namespace otfp {
 std::string vtp_document(const ParticleSet& particles, double t, const std::vector<std::int32_t>& region = {},
                          const std::vector<double>& density = {});
 
+// Parallel VTK (.pvtp) over pieces written by vtp_document with region and
+// density (one piece per process of a distributed run; file names relative
+// to the .pvtp). ParaView reads it as one data set.
+std::string pvtp_document(const std::vector<std::string>& pieces);
+
 // ParaView collection (.pvd) of (time, file) entries, part 0. Only the
 // particles: a domain surface listed here as a second part would be drawn
 // opaque by ParaView's defaults and hide every particle (issue 23), so it is

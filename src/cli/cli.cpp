@@ -13,6 +13,7 @@
 #include <filesystem>
 #include <iostream>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -223,17 +224,22 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
     return error(err, std::string(e.what()) + hint + " (try --help)", kUsage);
   }
 
-  // Started by mpirun on several ranks, every rank would run the whole
-  // serial simulation into the same directory: refused until the run itself
-  // is distributed (docs/distributed.md). Open MPI and PMI (MPICH, Slurm)
-  // tell the world size in the environment.
-  for (const char* var : {"OMPI_COMM_WORLD_SIZE", "PMI_SIZE"})
-    if (const char* ranks = std::getenv(var); ranks != nullptr && std::atoi(ranks) > 1)
-      return error(err,
-                   std::string(var) + " = " + ranks +
-                       ": otfp runs on one rank (a distributed run is not built yet; the library's "
-                       "DistributedImplicitStepper is, docs/distributed.md)",
+  // Started by mpirun on several ranks: `otfp run` is distributed over them
+  // (docs/distributed.md); a sweep runs its configurations on one rank.
+  if (const int ranks = launched_ranks(); ranks > 1) {
+#ifndef OTFP_WITH_TAO
+    return error(err,
+                 fmt::format("{} ranks: this otfp was built without MPI and PETSc (OTFP_WITH_MPI), so it runs on one "
+                             "rank (docs/distributed.md)",
+                             ranks),
+                 kUsage);
+#endif
+    if (sweep->parsed())
+      return error(err, fmt::format("{} ranks: otfp sweep runs on one rank (run its configurations with mpirun "
+                                    "otfp run)",
+                                    ranks),
                    kUsage);
+  }
 
   if (sweep->parsed()) {
     if (out_dir.empty()) return error(err, "--out = \"\": must be a non-empty path", kUsage);
@@ -330,15 +336,24 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   std::unique_ptr<ConfiguredRun> sim = load(config, sets, err, code);
   if (!sim) return code;
 
+  // A distributed run: rank 0 writes the files and prints; the outcomes
+  // below are every rank's alike.
+  const bool root = sim->root_process();
   if (check->parsed()) {
-    out << sim->describe().dump(2) << "\n";
+    if (root) out << sim->describe().dump(2) << "\n";
     return 0;
   }
 
   const std::filesystem::path dir(out_dir);
   OutputLock lock;  // held until the run has written its last file
-  if (const std::string why = prepare_out_dir(dir, resume, overwrite, lock); !why.empty())
-    return error(err, (resume ? "--resume = \"" : "--out = \"") + out_dir + "\": " + why, kUsage);
+  std::string why;
+  if (root) why = prepare_out_dir(dir, resume, overwrite, lock);
+  if (sim->any_process(!why.empty()))
+    return root ? error(err, (resume ? "--resume = \"" : "--out = \"") + out_dir + "\": " + why, kUsage) : kUsage;
+  if (!root) quiet = true;
+  // Other ranks report nothing (their outcome is rank 0's).
+  std::ostringstream elsewhere;
+  std::ostream& report = root ? err : elsewhere;
 
   RunOptions ro;
   ro.out_dir = dir;
@@ -361,19 +376,19 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
   clear_kill_time_state();
   if (r.nothing_to_do) {
     if (!quiet)
-      err << fmt::format("otfp: {} is already at step {}, t = {}: nothing to do (extend it with --set run.t_end=...)\n",
+      report << fmt::format("otfp: {} is already at step {}, t = {}: nothing to do (extend it with --set run.t_end=...)\n",
                          one_line(out_dir), r.last.step, r.last.t);
     return 0;
   }
   if (r.exit_code == kExitInterrupted) {
     // Asked for (SIGINT/SIGTERM): a notice, not an error.
-    err << "otfp: " << one_line(r.error) << "\n";
+    report << "otfp: " << one_line(r.error) << "\n";
     return kExitInterrupted;
   }
   if (r.exit_code == kExitRefused)
-    return error(err, "--resume = \"" + one_line(out_dir) + "\": " + r.error + " (nothing in it was changed)", kUsage);
+    return error(report, "--resume = \"" + one_line(out_dir) + "\": " + r.error + " (nothing in it was changed)", kUsage);
   if (r.exit_code != 0)
-    return error(err,
+    return error(report,
                  r.rows ? fmt::format("{} (the files in {} are complete up to step {}, t = {})", r.error, out_dir,
                                       r.last.step, r.last.t)
                         : fmt::format("{} (before step 0: {} holds no rows)", r.error, out_dir),
@@ -386,7 +401,7 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
     if (r.summary.contains("final") && r.summary["final"].contains("mass_blob_ratio") &&
         r.summary["final"]["mass_blob_ratio"].is_number())
       blob = fmt::format(", M_rho/M_inf = {:.4f}", r.summary["final"]["mass_blob_ratio"].get<double>());
-    err << fmt::format("otfp: {} steps to t = {}: n = {}, M/M_inf = {:.4f}{}, {:.1f} s -> {}\n", r.last.step, r.last.t,
+    report << fmt::format("otfp: {} steps to t = {}: n = {}, M/M_inf = {:.4f}{}, {:.1f} s -> {}\n", r.last.step, r.last.t,
                        r.last.n_particles, r.last.mass_ratio, blob, r.summary.value("wall_seconds", 0.0),
                        one_line(out_dir));
   }

@@ -18,15 +18,18 @@ namespace {
 // The library's time loop: fixed steps on its grid t_k = k dt (kept in the
 // checkpoint: a resumed run keeps its grid when its dt is unchanged, and its
 // step when run.t_end moved), or the adaptive controller.
-RunControl run_control(const Config& c, const Derived& d, const RunOptions& options) {
+RunControl run_control(const Config& c, const Derived& d, const RunOptions& options, const otfp::Simulation& sim) {
   RunControl control;
   control.t_end = c.run.t_end;
   control.dt = d.dt;
   control.adaptive = c.run.dt_mode == DtMode::Adaptive;
   control.max_steps = c.run.max_steps;
   control.checkpoint_interval = c.run.checkpoint_interval;
-  control.stop = [stop_flag = options.stop_flag, stop_after_step = options.stop_after_step](const SimulationStep& s) {
-    return (stop_flag && *stop_flag) || (stop_after_step > 0 && s.step >= stop_after_step);
+  // Over several ranks a signal may reach some of them first: all stop
+  // after the step in which any did.
+  control.stop = [stop_flag = options.stop_flag, stop_after_step = options.stop_after_step,
+                  &sim](const SimulationStep& s) {
+    return sim.any_process(stop_flag && *stop_flag) || (stop_after_step > 0 && s.step >= stop_after_step);
   };
   return control;
 }
@@ -81,7 +84,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
                             reference ? reference->columns() : std::vector<std::string>{});
   const SeriesLayout timing = SeriesLayout::timing();
   RowMaker rows(d, sim, reference.get(), wall);
-  ProgressLine progress(c, d, sim, wall, options.progress);
+  ProgressLine progress(c, d, sim, wall, options.progress && sim.root_process());
   RunFiles files(*this, sim, options.out_dir, options.stop_flag != nullptr,
                  [&](const std::string& status, const std::string& error, const StepRecord& last) {
                    return run_summary(*this, sim, reference.get(), rows.sums, wall(), status, error, last);
@@ -97,7 +100,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       progress.show(r, final_row);
       files.rearm_kill_summary(r);
     };
-    const RunControl control = run_control(c, d, options);
+    const RunControl control = run_control(c, d, options, sim);
     // The configuration the checkpoints are written with (a resume must match it).
     const auto fingerprint = files.active() ? config_fingerprint(c) : std::map<std::string, std::string>{};
     if (!options.resume) {
@@ -105,6 +108,12 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       rows.sums.n0 = static_cast<std::int64_t>(fill.size());
       rows.sums.M0 = fill.total_mass();
       files.create(layout.header(), timing.header());
+      // A distributed run starts with every particle on rank 0 (start() hands them out).
+      if (!sim.root_process()) {
+        const ParticleId next = fill.next_id();
+        fill = ParticleSet(c.run.dim);
+        fill.set_next_id(next);
+      }
       // Algorithm 1 runs in the library; the reservoir (if any) is filled
       // before the first step, counted as step 0's insertions.
       sim.start(std::move(fill), rng, 0.0);

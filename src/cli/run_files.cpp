@@ -2,6 +2,7 @@
 #include <fmt/format.h>
 
 #include "otfp/density.hpp"
+#include "otfp/diagnostics.hpp"
 #include "otfp/particle_io.hpp"
 #include "otfp/surface.hpp"
 #include "otfp/vtk.hpp"
@@ -11,10 +12,15 @@ namespace otfp::app::detail {
 
 RunFiles::RunFiles(const ConfiguredRun& run, const otfp::Simulation& sim, std::filesystem::path out,
                    bool kill_summary, Summary summary)
-    : run_(run), sim_(sim), out_(std::move(out)), kill_summary_(kill_summary), summary_(std::move(summary)) {}
+    : run_(run),
+      sim_(sim),
+      out_(std::move(out)),
+      root_(sim.root_process()),
+      kill_summary_(kill_summary),
+      summary_(std::move(summary)) {}
 
 void RunFiles::create(const std::string& series_header, const std::string& timing_header) {
-  if (!active()) return;
+  if (!active() || !root_) return;
   std::filesystem::create_directories(out_);
   series_ = AppendFile(out_ / "series.csv", series_header);
   timing_ = AppendFile(out_ / "timing.csv", timing_header);
@@ -25,6 +31,7 @@ void RunFiles::create(const std::string& series_header, const std::string& timin
 }
 
 void RunFiles::reopen(const std::string& series_text, const std::string& timing_text, const StepRecord& last) {
+  if (!root_) return;
   series_ = AppendFile(out_ / "series.csv", series_text);
   timing_ = AppendFile(out_ / "timing.csv", timing_text);
   arm_kill_summary(last, true);
@@ -34,6 +41,10 @@ void RunFiles::reopen(const std::string& series_text, const std::string& timing_
 void RunFiles::append(const std::string& series_line, const std::string& timing_line, const StepRecord& r,
                       bool snapshot_due, const std::vector<std::int32_t>& region) {
   if (!active()) return;
+  if (!root_) {
+    if (snapshot_due) snapshot(r, region);  // this rank's piece
+    return;
+  }
   // A row is in both files or in neither (a full disk fails either write).
   const std::uint64_t series_size = series_.size();
   series_.append(series_line);
@@ -48,6 +59,10 @@ void RunFiles::append(const std::string& series_line, const std::string& timing_
 
 void RunFiles::snapshot(const StepRecord& r, const std::vector<std::int32_t>& region) {
   if (last_snapshot == r.step) return;
+  if (sim_.distributed()) {
+    distributed_snapshot(r, region);
+    return;
+  }
   const ParticleSet& particles = sim_.particles();
   for (const Vec3& x : particles.positions())
     if (!x.allFinite()) throw RunError(fmt::format("non-finite particle position at step {}", r.step));
@@ -65,8 +80,30 @@ void RunFiles::snapshot(const StepRecord& r, const std::vector<std::int32_t>& re
   last_snapshot = r.step;
 }
 
+// A distributed run's snapshot: each rank writes its particles as a piece
+// (the blob density at them summed over every rank's blobs), rank 0 the
+// .pvtp that joins them and the .pvd.
+void RunFiles::distributed_snapshot(const StepRecord& r, const std::vector<std::int32_t>& region) {
+  const ParticleSet& particles = sim_.particles();
+  bool finite = true;
+  for (const Vec3& x : particles.positions()) finite = finite && x.allFinite();
+  if (sim_.any_process(!finite)) throw RunError(fmt::format("non-finite particle position at step {}", r.step));
+  const std::vector<double> rho = sim_.particle_density(run_.config().solver.kernel_tolerance);
+  const std::string base = fmt::format("particles_{:05d}", r.step);
+  write_file_atomic(out_ / fmt::format("{}_{}.vtp", base, sim_.process_rank()),
+                    vtp_document(particles, r.t, region, rho));
+  if (root_) {
+    std::vector<std::string> pieces;
+    for (int k = 0; k < sim_.process_count(); ++k) pieces.push_back(fmt::format("{}_{}.vtp", base, k));
+    write_file_atomic(out_ / (base + ".pvtp"), pvtp_document(pieces));
+    snapshots.emplace_back(r.t, base + ".pvtp");
+    write_file_atomic(out_ / "particles.pvd", pvd_document(snapshots));
+  }
+  last_snapshot = r.step;
+}
+
 void RunFiles::arm_kill_summary(const StepRecord& r, bool have_row) {
-  if (!active() || !kill_summary_) return;
+  if (!active() || !kill_summary_ || !root_) return;
   const std::string why =
       have_row ? fmt::format("stopped by a second signal during a step after step {} (t = {}); the files are "
                              "complete up to step {} at least; continue from the last checkpoint, if one was "
@@ -89,13 +126,24 @@ void RunFiles::write_checkpoint(const nlohmann::json& driver) {
 }
 
 void RunFiles::write_summary(const nlohmann::json& summary) {
+  if (!root_) return;
   std::filesystem::create_directories(out_);
   write_file_atomic(out_ / "summary.json", summary.dump(2) + "\n");
 }
 
 void RunFiles::write_final_particles(const std::vector<std::int32_t>& region) {
   // Final particles as CSV (widths for histograms, positions for profiles).
-  if (active()) write_file_atomic(out_ / "particles_final.csv", particles_csv(sim_.particles(), region));
+  if (!active()) return;
+  if (!sim_.distributed()) {
+    write_file_atomic(out_ / "particles_final.csv", particles_csv(sim_.particles(), region));
+    return;
+  }
+  // Every rank's, in id order, with their regions (collective).
+  const ParticleSet all = sim_.gathered_particles();
+  if (!root_) return;
+  std::vector<std::int32_t> regions;
+  measure_state(sim_.domain(), sim_.buffer(), all, Vec3::Zero(), sim_.time(), &regions);
+  write_file_atomic(out_ / "particles_final.csv", particles_csv(all, regions));
 }
 
 void RunFiles::write_failed_particles(const Derived& d, double t) noexcept {
@@ -106,9 +154,12 @@ void RunFiles::write_failed_particles(const Derived& d, double t) noexcept {
     for (const Vec3& x : sim_.particles().positions()) finite = finite && x.allFinite();
     if (finite) {
       std::vector<std::int32_t> flags;
-      sim_.measure(d.center, &flags);
+      // This rank's own measure (no collective on the way out of a failure).
+      measure_state(sim_.domain(), sim_.buffer(), sim_.particles(), d.center, t, &flags);
       std::filesystem::create_directories(out_);
-      write_file_atomic(out_ / "particles_failed.vtp", vtp_document(sim_.particles(), t, flags));
+      const std::string name = sim_.distributed() ? fmt::format("particles_failed_{}.vtp", sim_.process_rank())
+                                                  : std::string("particles_failed.vtp");
+      write_file_atomic(out_ / name, vtp_document(sim_.particles(), t, flags));
     }
   } catch (const std::exception&) {
     // Best effort: the error being reported matters more.

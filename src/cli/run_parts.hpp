@@ -141,10 +141,12 @@ class RunFiles {
 
  private:
   void snapshot(const StepRecord& r, const std::vector<std::int32_t>& region);
+  void distributed_snapshot(const StepRecord& r, const std::vector<std::int32_t>& region);
   void write_domain_surface();
   const ConfiguredRun& run_;
   const otfp::Simulation& sim_;
   std::filesystem::path out_;
+  bool root_;  // writes the files (a distributed run's rank 0); every rank writes its snapshot pieces
   bool kill_summary_;
   Summary summary_;
   AppendFile series_, timing_;

@@ -111,7 +111,10 @@ StepRecord RowMaker::operator()(std::int64_t step, double t, const StepSummary* 
     sample.t = t;
     sample.measures = ms;
     sample.mass_blob = r.mass_blob;
-    sample.particles = &sim_.particles();
+    // A distributed run's particles are shares: the reference reads all.
+    ParticleSet gathered;
+    if (sim_.distributed() && reference_->uses_particles()) gathered = sim_.gathered_particles();
+    sample.particles = sim_.distributed() && reference_->uses_particles() ? &gathered : &sim_.particles();
     sample.initial_mass = sums.M0;
     ReferenceRow row = reference_->row(sample);
     r.reference_values = std::move(row.values);

@@ -13,6 +13,9 @@
 #include <optional>
 
 #include "configured_run_state.hpp"
+#ifdef OTFP_WITH_TAO
+#include "otfp/mpi_distribution.hpp"
+#endif
 #include "domain_setup.hpp"
 #include "setup_keys.hpp"
 #include "otfp/barrier.hpp"
@@ -88,6 +91,26 @@ void check_fill_file(const Config& c, const otfp::Simulation& sim, const Particl
 
 
 ConfiguredRun::~ConfiguredRun() = default;
+
+int launched_ranks() {
+  // Open MPI and PMI (MPICH, Slurm) tell the world size in the environment.
+  for (const char* var : {"OMPI_COMM_WORLD_SIZE", "PMI_SIZE"})
+    if (const char* ranks = std::getenv(var); ranks != nullptr) return std::max(1, std::atoi(ranks));
+  return 1;
+}
+
+namespace {
+
+// Started by mpirun on several ranks: the run is distributed
+// (docs/distributed.md); otherwise serial.
+std::shared_ptr<otfp::RunDistribution> launched_distribution() {
+#ifdef OTFP_WITH_TAO
+  if (launched_ranks() > 1) return std::make_shared<otfp::MpiDistribution>();
+#endif
+  return nullptr;
+}
+
+}  // namespace
 
 // Values that are finite but would fail at step 0 (an infinite advected
 // position, a source that multiplies the particles past any limit, boundary
@@ -451,7 +474,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   try {
     st.data = data;
     st.options = so;
-    st.sim = std::make_unique<otfp::Simulation>(domain_, std::move(data), so);
+    st.sim = std::make_unique<otfp::Simulation>(domain_, std::move(data), so, launched_distribution());
   } catch (const SimulationSetupError& e) {
     using Stage = SimulationSetupError::Stage;
     switch (e.stage()) {
@@ -600,6 +623,9 @@ ParticleSet ConfiguredRun::initial_particles(Rng& rng) const {
   }
   return fill;
 }
+
+bool ConfiguredRun::root_process() const { return state_->sim->root_process(); }
+bool ConfiguredRun::any_process(bool v) const { return state_->sim->any_process(v); }
 
 std::unique_ptr<otfp::Simulation> ConfiguredRun::make_simulation() const {
   auto sim = std::make_unique<otfp::Simulation>(domain_, state_->data, state_->options);

@@ -14,6 +14,7 @@
 #include <numeric>
 #include <string>
 
+#include "particle_exchange.hpp"
 #include "petsc_session.hpp"
 
 namespace otfp {
@@ -208,49 +209,16 @@ std::size_t migrate(ParticleSet& owned, const Layout& layout) {
   MPI_Comm_size(comm, &size);
   MPI_Comm_rank(comm, &rank);
   require(layout.ranks() == size, "layout.ranks()", layout.ranks(), "must equal world_size()");
-  // Per destination: the records (x, y, z, s, m, birth) and the ids.
-  constexpr int kDoubles = 6;
-  const auto ranks = static_cast<std::size_t>(size);
-  std::vector<std::vector<double>> out(ranks);
-  std::vector<std::vector<std::int64_t>> out_ids(ranks);
+  std::vector<std::vector<std::size_t>> to(static_cast<std::size_t>(size));
   std::vector<std::size_t> leaving;
   for (std::size_t p = 0; p < owned.size(); ++p) {
     const int r = layout.owner(owned.positions()[p]);
     if (r == rank) continue;
-    const Vec3& y = owned.positions()[p];
-    auto& o = out[static_cast<std::size_t>(r)];
-    o.insert(o.end(), {y[0], y[1], y[2], owned.widths()[p], owned.masses()[p], owned.birth_times()[p]});
-    out_ids[static_cast<std::size_t>(r)].push_back(owned.ids()[p]);
+    to[static_cast<std::size_t>(r)].push_back(p);
     leaving.push_back(p);
   }
-  std::vector<int> send_n(ranks), recv_n(ranks);
-  for (std::size_t r = 0; r < ranks; ++r) send_n[r] = static_cast<int>(out_ids[r].size());
-  MPI_Alltoall(send_n.data(), 1, MPI_INT, recv_n.data(), 1, MPI_INT, comm);
-  std::vector<int> send_off(ranks, 0), recv_off(ranks, 0);
-  for (std::size_t r = 1; r < ranks; ++r) {
-    send_off[r] = send_off[r - 1] + send_n[r - 1];
-    recv_off[r] = recv_off[r - 1] + recv_n[r - 1];
-  }
-  const int n_in = recv_off.back() + recv_n.back();
-  std::vector<double> flat;
-  std::vector<std::int64_t> flat_ids;
-  for (std::size_t r = 0; r < ranks; ++r) {
-    flat.insert(flat.end(), out[r].begin(), out[r].end());
-    flat_ids.insert(flat_ids.end(), out_ids[r].begin(), out_ids[r].end());
-  }
-  std::vector<std::int64_t> in_ids(static_cast<std::size_t>(n_in));
-  MPI_Alltoallv(flat_ids.data(), send_n.data(), send_off.data(), MPI_INT64_T, in_ids.data(), recv_n.data(),
-                recv_off.data(), MPI_INT64_T, comm);
-  // The records: kDoubles per particle.
-  auto scaled = [](std::vector<int> v) {
-    for (int& c : v) c *= kDoubles;
-    return v;
-  };
-  const std::vector<int> send_d = scaled(send_n), send_doff = scaled(send_off);
-  const std::vector<int> recv_d = scaled(recv_n), recv_doff = scaled(recv_off);
-  std::vector<double> in(static_cast<std::size_t>(n_in) * kDoubles);
-  MPI_Alltoallv(flat.data(), send_d.data(), send_doff.data(), MPI_DOUBLE, in.data(), recv_d.data(),
-                recv_doff.data(), MPI_DOUBLE, comm);
+  const detail::ParticleRecords arrived = detail::exchange_particles(owned, to, comm);
+  const std::vector<std::int64_t>& in_ids = arrived.ids;
 
   // A repeated id (ids not unique over the ranks) is refused on every rank
   // before anything changes, so that no rank goes on alone.
@@ -273,12 +241,10 @@ std::size_t migrate(ParticleSet& owned, const Layout& layout) {
   require(any_repeated == 0, "particle id", repeated ? static_cast<double>(example) : -1.0,
           "is held by two ranks: ids must be unique over the ranks (add_with_id); nothing was moved");
 
-  owned.remove_indices(leaving);
-  for (std::size_t i = 0; i < in_ids.size(); ++i) {
-    const double* r = &in[i * kDoubles];
-    owned.add_with_id(in_ids[i], Vec3(r[0], r[1], r[2]), r[3], r[4], r[5]);
-  }
-  return leaving.size();
+  const std::size_t left = leaving.size();
+  owned.remove_indices(std::move(leaving));
+  for (std::size_t i = 0; i < arrived.size(); ++i) arrived.add_to(owned, i);
+  return left;
 }
 
 }  // namespace otfp

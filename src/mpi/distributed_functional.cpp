@@ -47,6 +47,7 @@
 #include <string>
 
 #include "otfp/types.hpp"
+#include "particle_exchange.hpp"
 #include "petsc_session.hpp"
 
 namespace otfp {
@@ -58,18 +59,7 @@ using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
-// Distance from y to the box [lo, hi] (per axis: 0 inside; periodic axes by
-// the nearest image of y).
-double distance_to_box(const Vec3& y, const Vec3& lo, const Vec3& hi, const Periodicity& per, int dim) {
-  double d2 = 0.0;
-  for (int k = 0; k < dim; ++k) {
-    auto gap = [&](double v) { return std::max({0.0, lo[k] - v, v - hi[k]}); };
-    double g = gap(y[k]);
-    if (per.period[k] > 0.0) g = std::min({g, gap(y[k] - per.period[k]), gap(y[k] + per.period[k])});
-    d2 += g * g;
-  }
-  return std::sqrt(d2);
-}
+using detail::distance_to_box;
 
 }  // namespace
 
@@ -175,17 +165,7 @@ struct DistributedFunctional::Impl {
     const double radius = cutoff_radius(s_max, no.kernel_tolerance) + skin;
 
     // Every rank's bounding box, [lo, hi], empty (lo > hi) for no particle.
-    std::vector<double> box(6), boxes(6 * static_cast<std::size_t>(size));
-    for (int k = 0; k < 3; ++k) {
-      box[k] = std::numeric_limits<double>::infinity();
-      box[3 + k] = -std::numeric_limits<double>::infinity();
-    }
-    for (const Vec3& y : x)
-      for (int k = 0; k < 3; ++k) {
-        box[k] = std::min(box[k], y[k]);
-        box[3 + k] = std::max(box[3 + k], y[k]);
-      }
-    MPI_Allgather(box.data(), 6, MPI_DOUBLE, boxes.data(), 6, MPI_DOUBLE, comm);
+    const std::vector<double> boxes = detail::all_boxes(x, comm);
 
     // What this rank sends: its particles within reach of each other box.
     std::vector<std::vector<PetscInt>> send(static_cast<std::size_t>(size));

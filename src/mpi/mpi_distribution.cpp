@@ -12,6 +12,7 @@
 
 #include "otfp/mpi.hpp"
 #include "otfp/types.hpp"
+#include "particle_exchange.hpp"
 #include "petsc_session.hpp"
 
 namespace otfp {
@@ -29,40 +30,32 @@ MPI_Comm world() {
 
 // The particles `which` of every rank's `part`, on every rank, in id order.
 ParticleSet gather_union(const ParticleSet& part, const std::vector<std::size_t>& which, MPI_Comm comm) {
-  constexpr int kDoubles = 6;  // x, y, z, s, m, birth
+  constexpr int kDoubles = detail::ParticleRecords::kDoubles;
   int size = 1;
   MPI_Comm_size(comm, &size);
-  std::vector<double> mine;
-  std::vector<std::int64_t> mine_ids;
-  mine.reserve(which.size() * kDoubles);
-  for (std::size_t p : which) {
-    const Vec3& y = part.positions()[p];
-    mine.insert(mine.end(), {y[0], y[1], y[2], part.widths()[p], part.masses()[p], part.birth_times()[p]});
-    mine_ids.push_back(part.ids()[p]);
-  }
+  detail::ParticleRecords mine;
+  for (std::size_t p : which) mine.append(part, p);
   const int n_mine = static_cast<int>(which.size());
   std::vector<int> counts(static_cast<std::size_t>(size)), offsets(static_cast<std::size_t>(size), 0);
   MPI_Allgather(&n_mine, 1, MPI_INT, counts.data(), 1, MPI_INT, comm);
   for (std::size_t r = 1; r < counts.size(); ++r) offsets[r] = offsets[r - 1] + counts[r - 1];
-  const auto n = static_cast<std::size_t>(offsets.back() + counts.back());
-  std::vector<std::int64_t> ids(n);
-  MPI_Allgatherv(mine_ids.data(), n_mine, MPI_INT64_T, ids.data(), counts.data(), offsets.data(), MPI_INT64_T, comm);
+  detail::ParticleRecords all;
+  all.ids.resize(static_cast<std::size_t>(offsets.back() + counts.back()));
+  MPI_Allgatherv(mine.ids.data(), n_mine, MPI_INT64_T, all.ids.data(), counts.data(), offsets.data(), MPI_INT64_T,
+                 comm);
   for (std::size_t r = 0; r < counts.size(); ++r) {
     counts[r] *= kDoubles;
     offsets[r] *= kDoubles;
   }
-  std::vector<double> all(n * kDoubles);
-  MPI_Allgatherv(mine.data(), n_mine * kDoubles, MPI_DOUBLE, all.data(), counts.data(), offsets.data(), MPI_DOUBLE,
-                 comm);
-  std::vector<std::size_t> order(n);
+  all.values.resize(all.ids.size() * kDoubles);
+  MPI_Allgatherv(mine.values.data(), n_mine * kDoubles, MPI_DOUBLE, all.values.data(), counts.data(), offsets.data(),
+                 MPI_DOUBLE, comm);
+  std::vector<std::size_t> order(all.size());
   std::iota(order.begin(), order.end(), std::size_t{0});
-  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
+  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return all.ids[a] < all.ids[b]; });
   ParticleSet out(part.dim());
-  out.reserve(n);
-  for (std::size_t k : order) {
-    const double* v = &all[k * kDoubles];
-    out.add_with_id(ids[k], Vec3(v[0], v[1], v[2]), v[3], v[4], v[5]);  // refuses an id held by two ranks
-  }
+  out.reserve(all.size());
+  for (std::size_t k : order) all.add_to(out, k);  // refuses an id held by two ranks
   return out;
 }
 
@@ -103,6 +96,35 @@ const ExchangeStats& MpiDistribution::exchange() const {
 
 ParticleSet MpiDistribution::gather(const ParticleSet& owned) { return all_particles(owned); }
 bool MpiDistribution::root() const { return rank() == 0; }
+
+ParticleSet MpiDistribution::nearby(const ParticleSet& owned, double radius, const Periodicity& periodicity) {
+  require(std::isfinite(radius) && radius >= 0.0, "radius", radius, "must be finite and >= 0");
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  const MPI_Comm comm = world();
+  const std::vector<double> boxes = detail::all_boxes(owned.positions(), comm);
+  const int me = rank(), ranks = size();
+  std::vector<std::vector<std::size_t>> to(static_cast<std::size_t>(ranks));
+  for (int r = 0; r < ranks; ++r) {
+    const double* b = &boxes[6 * static_cast<std::size_t>(r)];
+    if (r == me || b[0] > b[3]) continue;
+    const Vec3 lo(b[0], b[1], b[2]), hi(b[3], b[4], b[5]);
+    for (std::size_t p = 0; p < owned.size(); ++p)
+      if (detail::distance_to_box(owned.positions()[p], lo, hi, periodicity, owned.dim()) <= radius)
+        to[static_cast<std::size_t>(r)].push_back(p);
+  }
+  const detail::ParticleRecords in = detail::exchange_particles(owned, to, comm);
+  ParticleSet out(owned.dim());
+  out.reserve(in.size());
+  for (std::size_t i = 0; i < in.size(); ++i) in.add_to(out, i);
+  return out;
+}
+
+double MpiDistribution::max(double v) {
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  double out = 0.0;
+  MPI_Allreduce(&v, &out, 1, MPI_DOUBLE, MPI_MAX, world());
+  return out;
+}
 
 double MpiDistribution::sum(double v) {
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());

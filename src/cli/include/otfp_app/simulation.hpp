@@ -130,6 +130,11 @@ struct RunResult {
   nlohmann::json summary;         // what summary.json holds
 };
 
+// The number of ranks mpirun (Open MPI, or PMI: MPICH, Slurm) started this
+// process among; 1 when not started by it. With more than one, a
+// ConfiguredRun is distributed over them (docs/distributed.md).
+int launched_ranks();
+
 class ConfiguredRun {
  public:
   explicit ConfiguredRun(Config config);
@@ -146,6 +151,12 @@ class ConfiguredRun {
   std::unique_ptr<otfp::Simulation> make_simulation() const;
   // The initial particles of the configuration (particles.fill), drawn from rng.
   ParticleSet initial_particles(Rng& rng) const;
+
+  // Started by mpirun on several ranks: whether this is the rank that
+  // writes the files and prints (true when serial), and whether v holds on
+  // some rank (collective).
+  bool root_process() const;
+  bool any_process(bool v) const;
 
   const Config& config() const { return config_; }
   const Derived& derived() const { return derived_; }
