@@ -785,20 +785,29 @@ TEST(DistributedSimulation, BoxMatchesTheSerialTaoRun) {
   EXPECT_LT(r.gathered, r.n);
 }
 
+// The converging preset's setup with the TAO backend (and draw_by_id, which
+// a distributed run sets).
+namespace {
+RunSetup tao_setup(const DomainPtr& domain, const std::vector<ConstantBoundaryData>& data, std::int64_t n_inf) {
+  register_tao_backend();
+  RunSetupOptions ro;
+  ro.n_inf = n_inf;
+  RunSetup setup = setup_run(*domain, data, ro);
+  setup.options.implicit.minimizer.backend = Backend::Tao;
+  setup.options.projection.draw_by_id = true;
+  return setup;
+}
+}  // namespace
+
 // Checkpoints do not depend on the rank count: one written by a distributed
 // run resumes serially (np = N -> 1), and one written by the serial run
 // resumes distributed (1 -> N); both end where the uninterrupted serial run
 // ends, particle by particle.
 TEST(DistributedSimulation, ACheckpointResumesOnAnyRankCount) {
-  register_tao_backend();
   const DomainPtr box = make_box(3, Vec3::Zero(), Vec3(2.0, 1.0, 1.0));
   const std::vector<ConstantBoundaryData> data{{0, PatchKind::Dirichlet, 500.0}};
-  RunSetupOptions ro;
-  ro.n_inf = 300;
-  const RunSetup setup = setup_run(*box, data, ro);
-  SimulationOptions o = setup.options;
-  o.implicit.minimizer.backend = Backend::Tao;
-  o.projection.draw_by_id = true;
+  const RunSetup setup = tao_setup(box, data, 300);
+  const SimulationOptions& o = setup.options;
   const double dt = setup.parameters.dt;
   const int half = 4, steps = 8;
   // One name on every rank: rank 0's process id.
@@ -863,13 +872,9 @@ TEST(DistributedSimulation, ACheckpointResumesOnAnyRankCount) {
 
 // What a distributed run does not do yet is refused by name.
 TEST(DistributedSimulation, RefusesWhatItDoesNotDoYet) {
-  register_tao_backend();
   const DomainPtr box = make_box(3, Vec3::Zero(), Vec3(2.0, 1.0, 1.0));
   const std::vector<ConstantBoundaryData> data{{0, PatchKind::Dirichlet, 500.0}};
-  RunSetupOptions ro;
-  ro.n_inf = 300;
-  SimulationOptions o = setup_run(*box, data, ro).options;
-  o.implicit.minimizer.backend = Backend::Tao;
+  const SimulationOptions o = tao_setup(box, data, 300).options;
   auto expect_refused = [&](const SimulationOptions& bad, const std::string& field) {
     try {
       Simulation sim(box, data, bad, std::make_shared<MpiDistribution>());
