@@ -26,6 +26,7 @@ class PlaneWall final : public MirrorWall {
     for (std::size_t i = 0; i < n; ++i)
       d[i] = ((xs[3 * i] - p0) * n0 + (xs[3 * i + 1] - p1) * n1) + (xs[3 * i + 2] - p2) * n2;
   }
+  bool keeps_images_farther() const override { return true; }
   // y = x - 2 ((x - p) . n) n; J = I - 2 n n^T.
   Vec3 reflect(const Vec3& x, Mat3* jac) const override {
     if (jac) *jac = Mat3::Identity() - 2.0 * n_ * n_.transpose();
@@ -48,6 +49,8 @@ class RoundWall final : public MirrorWall {
     for (int k = dim_; k < 3; ++k) c_[k] = 0.0;
   }
   double distance(const Vec3& x) const override { return sign_ * (offset(x).norm() - r_); }
+  // Inside (r_p, r_q <= R, angle a): |p - y_q|^2 - |p - q|^2 = 4 (R - r_q)(R - r_p cos a) >= 0.
+  bool keeps_images_farther() const override { return sign_ > 0.0; }
   // distance() spelt out per component (Eigen's order of the sums, the same
   // bits, tested): branch-free loops for the squared distance from the
   // centre or axis, then Eigen's packet sqrt (std::sqrt keeps a scalar

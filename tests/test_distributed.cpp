@@ -226,6 +226,14 @@ TEST(DistributedFunctional, MatchesSerialWithImageBlobs) {
     DomainPtr ball = make_ball(dim, Vec3::Zero(), 0.93);
     for (Split split : {Split::Slabs, Split::Random})
       expect_round_off(compare(c, split, dim == 2, Barrier(ball, 100.0), Periodicity::none(dim), {0.05, 2.0}, sphere));
+    // An obstacle (the domain outside a ball): its images bring blobs nearer
+    // the far side, and the ghosts reach three list radii.
+    Cloud around = c;
+    for (auto& y : around.x)
+      if (y.norm() < 0.25) y = (0.25 + 0.5 * y.norm()) * (y.norm() > 0.0 ? Vec3(y / y.norm()) : Vec3::UnitX());
+    const std::vector<MirrorWallPtr> obstacle{make_sphere_wall(dim, Vec3::Zero(), 0.2, WallSide::DomainOutside)};
+    for (Split split : {Split::Slabs, Split::Random})
+      expect_round_off(compare(around, split, dim == 2, Barrier(), Periodicity::none(dim), {0.05, 2.0}, obstacle));
   }
 }
 

@@ -41,6 +41,13 @@ class MirrorWall {
   virtual void distances(const Vec3* x, std::size_t n, double* d) const;
   // Mirror image of x and, if jacobian is not null, d(image)/dx.
   virtual Vec3 reflect(const Vec3& x, Mat3* jacobian) const = 0;
+  // True when a reflection never brings a point of the domain's side nearer
+  // another one: |p - reflect(q)| >= |p - q| for p, q on the domain's side
+  // (planes; spheres and cylinders the domain lies inside). Not for an
+  // obstacle: the image of a blob on one side lies inside it, nearer the
+  // blobs on its far side. A distributed evaluation widens its ghosts where
+  // this is false.
+  virtual bool keeps_images_farther() const { return false; }
   // WallImages::select calls distance() and distances() from several
   // threads at once: they must not change the wall (nor throw, ideally; an
   // exception is passed on after the threads have finished).

@@ -25,11 +25,12 @@
 // Image blobs (no-flux walls, the reservoir band's back face): each rank
 // mirrors its own particles and its ghosts, by the serial rule (a blob within
 // its list radius of a wall), and appends the images to its local blobs. An
-// image enters an owned particle's list only if its source is within the
-// list radius too: reflection across a plane, or across a sphere the domain
-// lies inside, never brings a point closer to the domain's side, |p - q| <=
-// |p - R(q)| (for the sphere (2R - 2 r_q)(2R - 2 r_p cos) >= 0), so the
-// source is already among the rank's blobs. An image's derivative goes to
+// image enters an owned particle's list only if its source is among the
+// rank's blobs: reflection across a plane, or across a sphere or cylinder
+// the domain lies inside, never brings a point nearer the domain's side,
+// |p - q| <= |p - R(q)| (MirrorWall::keeps_images_farther), so the source is
+// within the list radius too; an obstacle's reflection can, and its ghosts
+// are taken within three list radii. An image's derivative goes to
 // its source by the reflection's chain rule (WallImages::pull_back), before
 // the ghosts' share is sent back to the owners.
 #include "otfp/distributed_functional.hpp"
@@ -163,6 +164,12 @@ struct DistributedFunctional::Impl {
     const NeighborOptions& no = options.neighbor;
     skin = no.skin >= 0.0 ? no.skin : no.skin_factor * s_min;
     const double radius = cutoff_radius(s_max, no.kernel_tolerance) + skin;
+    // Ghosts: within the list radius R; with an obstacle's images, 3 R: an
+    // image y_q within R of p has its source within R + |q - y_q| <= 3 R
+    // (a blob is mirrored within its reach <= R of the wall).
+    bool farther = true;
+    for (const MirrorWallPtr& w : images.walls()) farther = farther && w->keeps_images_farther();
+    const double ghost_radius = farther ? radius : 3.0 * radius;
 
     // Every rank's bounding box, [lo, hi], empty (lo > hi) for no particle.
     const std::vector<double> boxes = detail::all_boxes(x, comm);
@@ -175,7 +182,8 @@ struct DistributedFunctional::Impl {
       if (b[0] > b[3]) continue;  // rank r owns nothing
       const Vec3 lo(b[0], b[1], b[2]), hi(b[3], b[4], b[5]);
       for (std::size_t p = 0; p < x.size(); ++p)
-        if (distance_to_box(x[p], lo, hi, per, dim) <= radius) send[static_cast<std::size_t>(r)].push_back(static_cast<PetscInt>(p));
+        if (distance_to_box(x[p], lo, hi, per, dim) <= ghost_radius)
+          send[static_cast<std::size_t>(r)].push_back(static_cast<PetscInt>(p));
     }
     // Each receiver learns which (rank, index) fills each of its ghost slots.
     std::vector<int> send_counts(static_cast<std::size_t>(size)), recv_counts(static_cast<std::size_t>(size));
