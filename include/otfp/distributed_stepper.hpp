@@ -9,10 +9,11 @@
 //
 // Today: implicit Euler without predictor, fixed or per-particle widths,
 // either stopping norm, a Barrier and periodic axes. Refused (InvalidArgument
-// naming the field): a backend other than TAO, BDF2, a predictor. Not yet,
-// and ignored: halving of a failed step (max_halvings: a failed step is
-// reported, not retried), the error estimate, sort_particles; there is no
-// external potential. Image blobs: functional().set_images().
+// naming the field): a backend other than TAO, BDF2, a predictor. A failed
+// solve is retried as 2, 4, ... substeps (max_halvings) and accepted
+// positions are wrapped into a periodic box, as serially. Not yet, and
+// ignored: the error estimate (NaN), sort_particles; there is no external
+// potential. Image blobs: functional().set_images().
 //
 // One distributed step (or functional evaluation) per process at a time:
 // two threads of one process running collectives on the same world would

@@ -63,8 +63,13 @@ struct DistributedImplicitStepper::Impl {
   DistributedFunctional functional;
   MPI_Comm comm = MPI_COMM_NULL;
 
+  Periodicity periodicity;
+
   Impl(int d, const ImplicitOptions& o, Barrier b, Periodicity p)
-      : dim(d), options(o), functional(d, detail::functional_options(o), std::move(b), p) {}
+      : dim(d), options(o), functional(d, detail::functional_options(o), std::move(b), p), periodicity(p) {}
+
+  bool solve(std::vector<Vec3>& x, std::vector<double>& s, const std::vector<double>& m, double dt,
+             StepSummary& summary);
 
   detail::StepFunctional step_functional() {
     detail::StepFunctional sf;
@@ -98,25 +103,14 @@ DistributedImplicitStepper::DistributedImplicitStepper(int dim, ImplicitOptions 
 
 DistributedImplicitStepper::~DistributedImplicitStepper() = default;
 
-StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
-  require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
-  require(owned.dim() == impl_->dim, "particles dim", owned.dim(),
-          "must equal the stepper's dim " + std::to_string(impl_->dim));
-  const auto t0 = Clock::now();
-  Impl& d = *impl_;
-  const ImplicitOptions& o = d.options;
-  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
-
-  StepSummary summary;
-  summary.dt = dt;
-  const std::vector<Vec3>& x = owned.positions();
-  const std::vector<double>& s = owned.widths();
-  const std::vector<double>& m = owned.masses();
+// One solve of (28) over [t, t + dt] from (x, s): on success (every rank's
+// verdict alike) x and s hold the minimiser.
+bool DistributedImplicitStepper::Impl::solve(std::vector<Vec3>& x, std::vector<double>& s,
+                                             const std::vector<double>& m, double dt, StepSummary& summary) {
+  const ImplicitOptions& o = options;
   const bool widths = o.width_mode == WidthMode::PerParticle;
-  const int builds_before = d.functional.exchange().rebuilds;
-
-  d.functional.set_dt(dt);
-  d.functional.set_reference(x, s, m);
+  functional.set_dt(dt);
+  functional.set_reference(x, s, m);
   const double s_max = o.max_width_factor > 0.0 ? o.max_width_factor * o.nominal_width : 0.0;
   const ExternalPotential none;
   // The objective checks this rank's particles (a width above the bound, say)
@@ -125,13 +119,13 @@ StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
   std::unique_ptr<detail::StepObjective> made;
   std::exception_ptr refused;
   try {
-    made = std::make_unique<detail::StepObjective>(d.step_functional(), none, x, s, m, dt, widths,
+    made = std::make_unique<detail::StepObjective>(step_functional(), none, x, s, m, dt, widths,
                                                    std::vector<double>{}, s_max);
   } catch (...) {
     refused = std::current_exception();
   }
   int any_refused = refused ? 1 : 0;
-  MPI_Allreduce(MPI_IN_PLACE, &any_refused, 1, MPI_INT, MPI_MAX, d.comm);
+  MPI_Allreduce(MPI_IN_PLACE, &any_refused, 1, MPI_INT, MPI_MAX, comm);
   if (refused) std::rethrow_exception(refused);
   require(any_refused == 0, "particles", 0.0, "refused by another rank (its error names the field)");
   // From here on every rank runs the same collectives: an exception on one
@@ -151,8 +145,8 @@ StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
       mins[1] = std::min(mins[1], m[p]);
       mass += m[p];
     }
-    MPI_Allreduce(MPI_IN_PLACE, mins, 2, MPI_DOUBLE, MPI_MIN, d.comm);
-    MPI_Allreduce(MPI_IN_PLACE, &mass, 1, MPI_DOUBLE, MPI_SUM, d.comm);
+    MPI_Allreduce(MPI_IN_PLACE, mins, 2, MPI_DOUBLE, MPI_MIN, comm);
+    MPI_Allreduce(MPI_IN_PLACE, &mass, 1, MPI_DOUBLE, MPI_SUM, comm);
     const double s_min = std::isfinite(mins[0]) ? mins[0] : 1.0;
     const double m_min = std::isfinite(mins[1]) ? mins[1] : 1.0;
 
@@ -168,37 +162,78 @@ StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
     mo.validate();
 
     MinimizerSummary ms;
-    if (start_ok) ms = detail::minimize_with(objective, z, mo, detail::run_tao_world, d.step_functional().all);
+    if (start_ok) ms = detail::minimize_with(objective, z, mo, detail::run_tao_world, step_functional().all);
     summary.reason = start_ok ? ms.reason : TerminationReason::NonFinite;
-    summary.iterations = ms.iterations;
-    summary.evaluations = ms.evaluations;
-    summary.solver_seconds = ms.solver_seconds;
+    summary.iterations += ms.iterations;
+    summary.evaluations += ms.evaluations;
+    summary.solver_seconds += ms.solver_seconds;
     summary.residual_displacement = ms.final_stopping_measure;
     summary.gradient_tolerance = ms.gradient_tolerance;
     summary.parts_before = before;
     summary.f_before = summary.f_start = f0;
-
+    // Into copies: the objective refers to (x, s) as the step's start.
     std::vector<Vec3> x_new = x;
     std::vector<double> s_new = s;
-    const bool ok = detail::accept_solve(objective, z, start_ok, ms, tol, f0, before, o.energy_tolerance, x_new, s_new,
-                                         summary);
-    summary.list_builds = d.functional.exchange().rebuilds - builds_before;
-    if (ok) {
-      owned.positions() = std::move(x_new);
-      owned.widths() = std::move(s_new);
-    } else {
-      summary.rejected_solves = 1;
-    }
-    summary.accepted = ok;
-    summary.wall_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
-    return summary;
+    if (!detail::accept_solve(objective, z, start_ok, ms, tol, f0, before, o.energy_tolerance, x_new, s_new, summary))
+      return false;
+    x = std::move(x_new);
+    s = std::move(s_new);
+    return true;
   } catch (const std::exception& e) {
-    abort_unless_alone(d.comm, e.what());
+    abort_unless_alone(comm, e.what());
     throw;
   } catch (...) {
-    abort_unless_alone(d.comm, "an unknown exception");
+    abort_unless_alone(comm, "an unknown exception");
     throw;
   }
+}
+
+// The serial stepper's step: a failed solve is retried as 2, 4, ...
+// substeps (max_halvings), and the accepted positions are wrapped into a
+// periodic box.
+StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
+  require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
+  require(owned.dim() == impl_->dim, "particles dim", owned.dim(),
+          "must equal the stepper's dim " + std::to_string(impl_->dim));
+  const auto t0 = Clock::now();
+  Impl& d = *impl_;
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  StepSummary summary;
+  summary.dt = dt;
+  const int builds_before = d.functional.exchange().rebuilds;
+  for (int halvings = 0; halvings <= d.options.max_halvings; ++halvings) {
+    std::vector<Vec3> x = owned.positions();
+    std::vector<double> s = owned.widths();
+    const int substeps = 1 << halvings;
+    const double h = dt / substeps;
+    bool ok = true;
+    FunctionalParts first_before;
+    double first_f = 0.0;
+    for (int k = 0; k < substeps && ok; ++k) {
+      ok = d.solve(x, s, owned.masses(), h, summary);
+      if (k == 0) {
+        first_before = summary.parts_before;
+        first_f = summary.f_before;
+      }
+    }
+    summary.halvings = halvings;
+    if (!ok) {
+      ++summary.rejected_solves;
+      continue;
+    }
+    summary.substeps = substeps;
+    summary.parts_before = first_before;
+    summary.f_before = summary.f_start = first_f;
+    summary.accepted = true;
+    for (Vec3& y : x) y = d.periodicity.wrap(y);
+    owned.positions() = std::move(x);
+    owned.widths() = std::move(s);
+    break;
+  }
+  if (!summary.accepted && summary.message.empty()) summary.message = "step rejected";
+  summary.list_builds = d.functional.exchange().rebuilds - builds_before;
+  summary.wall_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  return summary;
 }
 
 const ExchangeStats& DistributedImplicitStepper::exchange() const { return impl_->functional.exchange(); }
