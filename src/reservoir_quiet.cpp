@@ -26,6 +26,7 @@
 namespace otfp {
 
 using detail::kMinCandidates;
+using detail::kPlacementKernelTolerance;
 using detail::kTailWidths;
 using detail::PlacementDensity;
 
@@ -364,8 +365,15 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
   }
   std::vector<double> deficit(cand.size());
   for (std::size_t k = 0; k < cand.size(); ++k) deficit[k] = target(cand[k]) - density.at(cand[k]);
+  // A placed particle lowers the deficit within its own kernel's cut-off
+  // (not the density's: with no particle yet, as when the band is filled
+  // at the start, that is the cut-off of a unit width, and every candidate
+  // was updated with exponentials that underflow: 80 s of the sphere's
+  // set-up at n_inf = 25600).
+  const double r_insert = cutoff_radius(width_s_, kPlacementKernelTolerance);
+  const double r2_insert = r_insert * r_insert;
   CellGrid grid;
-  grid.build(cand, density.radius(), Periodicity::none(dim), 1);
+  grid.build(cand, r_insert, Periodicity::none(dim), 1);
   // Per group, a max-heap of (deficit, candidate) with lazy updates:
   // deficits only fall as particles are placed, so a popped entry whose
   // deficit has fallen goes back in with its new value.
@@ -398,8 +406,7 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
       const Vec3 y = cand[k];
       particles.add(y, width_s_, mp, t_new);
       grid.for_each_candidate(y, [&](std::uint32_t l) {
-        if (!used[l] && (cand[l] - y).squaredNorm() < r2)
-          deficit[l] -= kernel(cand[l], y);
+        if (!used[l] && (cand[l] - y).squaredNorm() < r2_insert) deficit[l] -= kernel(cand[l], y);
       });
       ++led.inserted;
       ++call.inserted;

@@ -826,9 +826,9 @@ void expect_same_run(const RunComparison& r) {
   EXPECT_TRUE(r.same_ids);
   EXPECT_TRUE(r.same_ledger);
   EXPECT_GT(r.inserted, 0);
-  // Measured over 10 steps (1-3 ranks): 1e-13 to 4.2e-10 of the domain's
+  // Measured over 10 steps (1-3 ranks): 4e-15 to 2.8e-10 of the domain's
   // size, where the serial run stored in another order differs from itself
-  // by 1e-13 to 8.5e-11: the order of the sums, amplified by ~15 LMVM
+  // by 3e-14 to 8.8e-12: the order of the sums, amplified by ~15 LMVM
   // iterations a step; 1e4 below the solver's tolerance (1e-3 widths).
   EXPECT_LT(r.dx, 1e-9);
   if (world_size() > 1) {
