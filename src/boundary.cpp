@@ -367,7 +367,7 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
       const double pre = member_mass[i];
       if (target > pre) {
         const double want = std::floor((target - pre) / mp + kCountTolerance);
-        require_particle_room(want, particles.size(), max_particles_, patch_label(i, t_new));
+        require_particle_room(want, counted(particles), max_particles_, patch_label(i, t_new));
         const auto n = static_cast<long>(want);
         particles.reserve(particles.size() + static_cast<std::size_t>(n));
         for (long k = 0; k < n; ++k) insert(LayerPart::Interior);
@@ -396,7 +396,7 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
       led.carry += inflow;
       // Checked before the loop: a carry past 2^53 m_p would never decrease.
       if (led.carry >= threshold)
-        require_particle_room(std::floor(led.carry / mp), particles.size(), max_particles_, patch_label(i, t_new));
+        require_particle_room(std::floor(led.carry / mp), counted(particles), max_particles_, patch_label(i, t_new));
       while (led.carry >= threshold) {
         insert(LayerPart::Whole);
         led.carry -= mp;
@@ -440,7 +440,15 @@ bool BoundaryProjection::reads(const Vec3& x, double s_max) const {
   // The band's mass sums follow a blob kTailWidths widths (reservoir_quiet.cpp);
   // the placement density is evaluated in the band and at its mirror points
   // inside (depth <= w), over blobs within its kernel's cut-off.
-  const double reach = std::max(detail::kTailWidths * s_max, cutoff_radius(s_max, detail::kPlacementKernelTolerance));
+  const double cutoff = cutoff_radius(s_max, detail::kPlacementKernelTolerance);
+  double reach = std::max(detail::kTailWidths * s_max, cutoff);
+  // An obstacle's reflection can bring a blob's image up to two cut-offs
+  // nearer the points where the placement density is evaluated.
+  for (const MirrorWallPtr& w : walls_)
+    if (!w->keeps_images_farther()) {
+      reach += 2.0 * cutoff;
+      break;
+    }
   for (std::size_t i = 0; i < conditions_.size(); ++i) {
     const PatchCondition& c = conditions_[i];
     if (c.kind == PatchKind::NoFlux) continue;

@@ -11,9 +11,9 @@
 namespace otfp::detail {
 
 PlacementDensity::PlacementDensity(const ParticleSet& particles, const std::vector<MirrorWallPtr>& walls,
-                                   double kernel_tolerance) {
+                                   double kernel_tolerance, double s_floor) {
   const int dim = particles.dim();
-  double s_max = 0.0;
+  double s_max = s_floor;
   for (double s : particles.widths()) s_max = std::max(s_max, s);
   radius_ = cutoff_radius(s_max > 0.0 ? s_max : 1.0, kernel_tolerance);
   if (particles.empty()) return;

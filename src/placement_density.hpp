@@ -22,8 +22,9 @@ class PlacementDensity {
   // images of images at edges and corners), so that a settled state of the
   // functional reads as one here. Kernels are cut at kernel_tolerance.
   PlacementDensity(const ParticleSet& particles, const std::vector<MirrorWallPtr>& walls,
-                   double kernel_tolerance = kPlacementKernelTolerance);
-  // The largest cut-off radius of the blobs.
+                   double kernel_tolerance = kPlacementKernelTolerance, double s_floor = 0.0);
+  // The largest cut-off radius of the blobs (of a width s_floor at least:
+  // other processes' blobs, which a distributed projection does not hold).
   double radius() const { return radius_; }
   // The blob density at y, images included.
   double at(const Vec3& y) const;

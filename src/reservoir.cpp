@@ -336,7 +336,7 @@ void BoundaryProjection::project_reservoir(std::size_t i, std::vector<std::vecto
     const double x_j = reservoir_profile_count(i, j, t_new);
     const double v = x_j + r.carry[j];
     long target = 0;
-    require_particle_room(v, particles.size(), max_particles_, patch_label(i, t_new));
+    require_particle_room(v, counted(particles), max_particles_, patch_label(i, t_new));
     if (v > 0.0) {
       target = static_cast<long>(std::floor(v + kCountTolerance));
       r.carry[j] = v - static_cast<double>(target);
@@ -362,7 +362,7 @@ void BoundaryProjection::project_reservoir(std::size_t i, std::vector<std::vecto
     }
   }
   if (total_missing == 0) return;
-  require_particle_room(static_cast<double>(total_missing), particles.size(), max_particles_, patch_label(i, t_new));
+  require_particle_room(static_cast<double>(total_missing), counted(particles), max_particles_, patch_label(i, t_new));
   // Missing particles: uniform in their sublayer, by rejection from the box
   // around the band; one loop fills every sublayer of the patch.
   const Domain& ext = *options_.reservoir_domain;

@@ -130,7 +130,7 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
     d[j] = (target_mass - band_mass[j]) / particle_mass_;
     require(std::isfinite(d[j]), "reservoir deficit (patch " + std::to_string(c.patch) + ")", d[j],
             "must be finite (check g)");
-    require_particle_room(std::max(x[j], 0.0), particles.size(), max_particles_, patch_label(i, t_new));
+    require_particle_room(std::max(x[j], 0.0), counted(particles), max_particles_, patch_label(i, t_new));
   }
   // Sublayers are held in groups of consecutive ones whose targets add up to
   // at least reservoir_group_target particles (each sublayer on its own
@@ -238,11 +238,11 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
   long total_insert = 0;
   for (std::size_t q = 0; q < groups; ++q) total_insert += std::max(change[q], 0L);
   if (std::all_of(change.begin(), change.end(), [](long v) { return v == 0; })) return;
-  require_particle_room(static_cast<double>(total_insert), particles.size(), max_particles_, patch_label(i, t_new));
+  require_particle_room(static_cast<double>(total_insert), counted(particles), max_particles_, patch_label(i, t_new));
 
   // Where particles go and leave: the blob density (images included) against
   // the pointwise target T(c) = clamp(2 g - rho(R c), 0, 2 g) (odd) or g.
-  const PlacementDensity density(particles, walls_);
+  const PlacementDensity density(particles, walls_, kPlacementKernelTolerance, unseen_s_max_);
   const double r2 = density.radius() * density.radius();
   auto target = [&](const Vec3& y) {
     const double g = c.data(y, t_new);

@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <exception>
 #include <fstream>
 #include <optional>
 #include <sstream>
@@ -374,9 +375,19 @@ void Simulation::set_next_dt(double dt) {
 void Simulation::start(ParticleSet particles, double t0) { start(std::move(particles), Rng(options_.seed), t0); }
 
 void Simulation::start(ParticleSet particles, Rng rng, double t0) {
-  require(particles.dim() == domain_->dim(), "particles dim", particles.dim(),
-          "must equal the domain's dim " + std::to_string(domain_->dim()));
-  require(std::isfinite(t0), "t0", t0, "must be finite");
+  // Over several processes a refusal on one is every process's (before any
+  // other collective).
+  std::exception_ptr refused;
+  try {
+    require(particles.dim() == domain_->dim(), "particles dim", particles.dim(),
+            "must equal the domain's dim " + std::to_string(domain_->dim()));
+    require(std::isfinite(t0), "t0", t0, "must be finite");
+  } catch (...) {
+    refused = std::current_exception();
+  }
+  if (distribution_ && distribution_->sum(std::int64_t{refused ? 1 : 0}) > 0 && !refused)
+    throw InvalidArgument("particles: refused by another process (its error names the field)");
+  if (refused) std::rethrow_exception(refused);
   const std::int64_t cap = max_particles();
   const std::int64_t given = distribution_ ? distribution_->sum(static_cast<std::int64_t>(particles.size()))
                                             : static_cast<std::int64_t>(particles.size());

@@ -172,6 +172,13 @@ class BoundaryProjection {
   // the gathered particles it reads.
   bool reads(const Vec3& x, double s_max) const;
   void set_max_particles(std::int64_t max_particles) { max_particles_ = max_particles; }
+  // Particles apply() is not given (other processes' shares, which it does
+  // not read): they count against max_particles, and the widest of them
+  // (s_max) widens the placement density's cut-off as it would serially.
+  void set_unseen(std::int64_t particles, double s_max) {
+    unseen_particles_ = particles;
+    unseen_s_max_ = s_max;
+  }
   // Walls across which the blob density has image blobs (otfp::Simulation
   // passes its mirrored walls): the quiet reservoir's placement counts them.
   void set_mirror_walls(std::vector<MirrorWallPtr> walls) { walls_ = std::move(walls); }
@@ -210,6 +217,11 @@ class BoundaryProjection {
 
  private:
   std::int64_t max_particles_ = 0;
+  std::int64_t unseen_particles_ = 0;  // set_unseen
+  double unseen_s_max_ = 0.0;
+  std::size_t counted(const ParticleSet& particles) const {  // against max_particles
+    return particles.size() + static_cast<std::size_t>(unseen_particles_);
+  }
   std::string patch_label(std::size_t condition_index, double t) const;  // for messages
   // Per Dirichlet condition in Reservoir mode.
   struct Reservoir {

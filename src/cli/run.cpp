@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include <cstdio>
+#include <exception>
 #include <functional>
 
 #include "configured_run_state.hpp"
@@ -66,6 +67,34 @@ void write_final_summary(detail::RunFiles& files, RunResult& result) {
   }
 }
 
+// Over several ranks a file may fail to be written on one rank only: every
+// rank learns it after the write and throws (that rank its own error), so
+// that none goes on alone into the next step's collectives.
+template <class Write>
+void on_every_rank(const otfp::Simulation& sim, Write&& write) {
+  if (!sim.distributed()) {
+    write();
+    return;
+  }
+  std::exception_ptr failed;
+  try {
+    write();
+  } catch (...) {
+    failed = std::current_exception();
+  }
+  if (!sim.any_process(failed != nullptr)) return;
+  if (failed && !sim.root_process()) {
+    // Only rank 0 reports; the cause is this rank's, so it says it itself.
+    try {
+      std::rethrow_exception(failed);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "otfp: rank %d: %s\n", sim.process_rank(), e.what());
+    }
+  }
+  if (failed) std::rethrow_exception(failed);
+  throw detail::RunError("another rank could not write its files (its error is on stderr)");
+}
+
 }  // namespace
 
 RunResult ConfiguredRun::run(const RunOptions& options) {
@@ -93,7 +122,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
   try {
     auto emit = [&](const StepRecord& r, bool final_row) {
       const bool snapshot = r.step == 0 || final_row || (c.run.vtk_interval > 0 && r.step % c.run.vtk_interval == 0);
-      files.append(layout.row(r), timing.row(r), r, snapshot, rows.region());
+      on_every_rank(sim, [&] { files.append(layout.row(r), timing.row(r), r, snapshot, rows.region()); });
       if (options.keep_series) result.series.push_back(r);
       last = r;
       result.rows = true;
@@ -107,7 +136,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
       ParticleSet fill = initial_particles(rng);
       rows.sums.n0 = static_cast<std::int64_t>(fill.size());
       rows.sums.M0 = fill.total_mass();
-      files.create(layout.header(), timing.header());
+      on_every_rank(sim, [&] { files.create(layout.header(), timing.header()); });
       // A distributed run starts with every particle on rank 0 (start() hands them out).
       if (!sim.root_process()) {
         const ParticleId next = fill.next_id();
@@ -137,7 +166,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
         return result;
       }
       result.rows = true;  // the rows up to the checkpoint
-      files.reopen(start.series_text, start.timing_text, last);
+      on_every_rank(sim, [&] { files.reopen(start.series_text, start.timing_text, last); });
     }
     Observer observer;
     observer.row = [&](const SimulationStep& step, bool last_step) {
@@ -156,7 +185,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
                                  last.t, options.out_dir.string());
       result.exit_code = kExitInterrupted;
     } else {
-      files.write_final_particles(rows.region());
+      on_every_rank(sim, [&] { files.write_final_particles(rows.region()); });
       result.status = "completed";
       result.exit_code = 0;
     }

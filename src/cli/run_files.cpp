@@ -41,10 +41,10 @@ void RunFiles::reopen(const std::string& series_text, const std::string& timing_
 void RunFiles::append(const std::string& series_line, const std::string& timing_line, const StepRecord& r,
                       bool snapshot_due, const std::vector<std::int32_t>& region) {
   if (!active()) return;
-  if (!root_) {
-    if (snapshot_due) snapshot(r, region);  // this rank's piece
-    return;
-  }
+  // A distributed snapshot first: its collectives (the density over every
+  // rank's blobs) come before any write that might fail on one rank.
+  if (sim_.distributed() && snapshot_due) snapshot(r, region);
+  if (!root_) return;
   // A row is in both files or in neither (a full disk fails either write).
   const std::uint64_t series_size = series_.size();
   series_.append(series_line);
@@ -54,7 +54,7 @@ void RunFiles::append(const std::string& series_line, const std::string& timing_
     series_.truncate(series_size);
     throw;
   }
-  if (snapshot_due) snapshot(r, region);
+  if (snapshot_due && !sim_.distributed()) snapshot(r, region);
 }
 
 void RunFiles::snapshot(const StepRecord& r, const std::vector<std::int32_t>& region) {

@@ -105,7 +105,13 @@ namespace {
 // (docs/distributed.md); otherwise serial.
 std::shared_ptr<otfp::RunDistribution> launched_distribution() {
 #ifdef OTFP_WITH_TAO
-  if (launched_ranks() > 1) return std::make_shared<otfp::MpiDistribution>();
+  if (launched_ranks() > 1) {
+    auto d = std::make_shared<otfp::MpiDistribution>();
+    // The variables inherited by a process that mpirun did not start as a
+    // rank (a script run under mpirun starting otfp): MPI's world is this
+    // process alone, and the run is serial.
+    if (d->size() > 1) return d;
+  }
 #endif
   return nullptr;
 }

@@ -129,9 +129,14 @@ struct DistributedFunctional::Impl {
   // forest), so that the images' displacement enters the rule too (the serial
   // list's covers particles and images alike).
   bool needs_rebuild(const std::vector<Vec3>& x, const std::vector<double>& s) {
+    // A forced rebuild anywhere is every rank's (decided before the images'
+    // exchange below, which every rank must join).
     int local = stale || x.size() != x_build.size() ? 1 : 0;
+    int any = 0;
+    MPI_Allreduce(&local, &any, 1, MPI_INT, MPI_MAX, comm);
+    if (any != 0) return true;
     double measure = 0.0;
-    if (!local) {
+    {
       double disp2 = 0.0, growth = 0.0;
       for (std::size_t p = 0; p < x.size(); ++p) {
         disp2 = std::max(disp2, per.displacement(x[p], x_build[p]).squaredNorm());
@@ -145,9 +150,7 @@ struct DistributedFunctional::Impl {
       }
       measure = 2.0 * std::sqrt(disp2) + cutoff_radius(growth, options.neighbor.kernel_tolerance);
     }
-    int any = 0;
-    MPI_Allreduce(&local, &any, 1, MPI_INT, MPI_MAX, comm);
-    return any != 0 || allreduce(measure, MPI_MAX) > skin;
+    return allreduce(measure, MPI_MAX) > skin;
   }
 
   // New ghost sets, star forest and neighbour list for the owned (x, s).

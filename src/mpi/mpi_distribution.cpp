@@ -160,18 +160,22 @@ PatchLedger MpiDistribution::project(BoundaryProjection& projection, ParticleSet
   band.set_next_id(next);
 
   // The same call on every rank, with the global cap: the particles it does
-  // not see count against it too. Its errors (a cap exceeded, bad data) are
+  // not see count against it too, and the widest blob anywhere sets the
+  // placement density's cut-off. Its errors (a cap exceeded, bad data) are
   // every rank's alike.
   const std::int64_t cap = projection.max_particles();
-  projection.set_max_particles(max_particles - (n_global - static_cast<std::int64_t>(band.size())));
+  projection.set_max_particles(max_particles);
+  projection.set_unseen(n_global - static_cast<std::int64_t>(band.size()), s_max);
   PatchLedger ledger;
   try {
     ledger = projection.apply(band, t, dt, rng);
   } catch (...) {
     projection.set_max_particles(cap);
+    projection.set_unseen(0, 0.0);
     throw;
   }
   projection.set_max_particles(cap);
+  projection.set_unseen(0, 0.0);
 
   // This share: without its removed particles, with the inserted ones it owns.
   std::vector<std::size_t> gone;
