@@ -195,14 +195,7 @@ bool ImplicitStepper::solve(std::vector<Vec3>& x, std::vector<double>& s, const 
 
   MinimizerSummary ms;
   if (start_ok) ms = minimize(objective, z, mo);
-  summary.reason = start_ok ? ms.reason : TerminationReason::NonFinite;
-  summary.iterations += ms.iterations;
-  summary.evaluations += ms.evaluations;
-  summary.solver_seconds += ms.solver_seconds;
-  summary.residual_displacement = ms.final_stopping_measure;
-  summary.gradient_tolerance = ms.gradient_tolerance;
-  summary.parts_before = before;
-  summary.f_before = f0;
+  detail::record_solve(ms, start_ok, before, f0, summary);
 
   std::vector<Vec3> x_new = x;
   std::vector<double> s_new = s;

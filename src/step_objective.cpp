@@ -71,6 +71,18 @@ StepTolerances step_tolerances(const ImplicitOptions& o, double dt, double s_min
   return t;
 }
 
+void record_solve(const MinimizerSummary& ms, bool start_ok, const FunctionalParts& before, double f0,
+                  StepSummary& summary) {
+  summary.reason = start_ok ? ms.reason : TerminationReason::NonFinite;
+  summary.iterations += ms.iterations;
+  summary.evaluations += ms.evaluations;
+  summary.solver_seconds += ms.solver_seconds;
+  summary.residual_displacement = ms.final_stopping_measure;
+  summary.gradient_tolerance = ms.gradient_tolerance;
+  summary.parts_before = before;
+  summary.f_before = f0;
+}
+
 bool accept_solve(StepObjective& objective, const std::vector<double>& z, bool start_ok, const MinimizerSummary& ms,
                   const StepTolerances& tol, double f0, const FunctionalParts& before, double energy_tolerance,
                   std::vector<Vec3>& x_new, std::vector<double>& s_new, StepSummary& summary) {

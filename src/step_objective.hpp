@@ -115,6 +115,12 @@ class StepObjective final : public Objective {
   FunctionalParts parts_;
 };
 
+// One solve's figures into the step's summary, the same for the serial and
+// the distributed step: the counts and solver time add up over substeps;
+// reason, residual, tolerance, parts and F before are the solve's.
+void record_solve(const MinimizerSummary& ms, bool start_ok, const FunctionalParts& before, double f0,
+                  StepSummary& summary);
+
 // The verdict on one step's solve, the same for the serial and the
 // distributed step: accepted when the solver converged, or when it stalled
 // (a failed line search) at F's round-off floor; then (x_new, s_new) is the

@@ -163,14 +163,8 @@ bool DistributedImplicitStepper::Impl::solve(std::vector<Vec3>& x, std::vector<d
 
     MinimizerSummary ms;
     if (start_ok) ms = detail::minimize_with(objective, z, mo, detail::run_tao_world, step_functional().all);
-    summary.reason = start_ok ? ms.reason : TerminationReason::NonFinite;
-    summary.iterations += ms.iterations;
-    summary.evaluations += ms.evaluations;
-    summary.solver_seconds += ms.solver_seconds;
-    summary.residual_displacement = ms.final_stopping_measure;
-    summary.gradient_tolerance = ms.gradient_tolerance;
-    summary.parts_before = before;
-    summary.f_before = summary.f_start = f0;
+    detail::record_solve(ms, start_ok, before, f0, summary);
+    summary.f_start = f0;
     // Into copies: the objective refers to (x, s) as the step's start.
     std::vector<Vec3> x_new = x;
     std::vector<double> s_new = s;
