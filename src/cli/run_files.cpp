@@ -1,7 +1,6 @@
 // The files of a run (docs/outputs.md): rows, snapshots, summaries.
 #include <fmt/format.h>
 
-#include "otfp/density.hpp"
 #include "otfp/diagnostics.hpp"
 #include "otfp/particle_io.hpp"
 #include "otfp/surface.hpp"
@@ -68,12 +67,7 @@ void RunFiles::snapshot(const StepRecord& r, const std::vector<std::int32_t>& re
     if (!x.allFinite()) throw RunError(fmt::format("non-finite particle position at step {}", r.step));
   const std::string name = fmt::format("particles_{:05d}.vtp", r.step);
   // The blob density (29) at each particle (images across mirrored walls not included).
-  const Domain& domain = run_.domain();
-  std::vector<double> rho;
-  if (!particles.empty())
-    blob_density(particles, particles.positions(),
-                 domain.is_periodic() ? Periodicity::from_domain(domain) : Periodicity::none(run_.config().run.dim),
-                 run_.config().solver.kernel_tolerance, rho, nullptr);
+  const std::vector<double> rho = sim_.particle_density(run_.config().solver.kernel_tolerance);
   write_file_atomic(out_ / name, vtp_document(particles, r.t, region, rho));
   snapshots.emplace_back(r.t, name);
   write_file_atomic(out_ / "particles.pvd", pvd_document(snapshots));
