@@ -325,14 +325,25 @@ int Simulation::condition_of(int patch) const {
 StateMeasures Simulation::measure(const Vec3& center, std::vector<std::int32_t>* region) const {
   StateMeasures r = measure_state(*domain_, buffer_, particles_, center, time_, region);
   if (!distribution_) return r;
-  RunDistribution& d = *distribution_;
-  const double age_sum = r.mean_age * static_cast<double>(r.n_particles);
-  for (std::int64_t* v : {&r.n_particles, &r.n_inside, &r.n_buffer, &r.n_outside}) *v = d.sum(*v);
-  for (double* v : {&r.mass_total, &r.mass_inside, &r.mass_with_layer, &r.polar_inertia, &r.polar_inertia_with_layer,
-                    &r.polar_inertia_total})
-    *v = d.sum(*v);
-  r.mean_age = r.n_particles > 0 ? d.sum(age_sum) / static_cast<double>(r.n_particles) : d.sum(0.0);
-  r.max_age = d.max(r.max_age);  // an empty share reports 0, and ages are >= 0
+  // One reduction of the sums (counts as doubles: exact below 2^53) and
+  // one of the largest age (an empty share reports 0, and ages are >= 0).
+  double v[11] = {static_cast<double>(r.n_particles), static_cast<double>(r.n_inside),
+                  static_cast<double>(r.n_buffer), static_cast<double>(r.n_outside), r.mass_total, r.mass_inside,
+                  r.mass_with_layer, r.polar_inertia, r.polar_inertia_with_layer, r.polar_inertia_total,
+                  r.mean_age * static_cast<double>(r.n_particles)};
+  distribution_->sum(v, 11);
+  r.n_particles = static_cast<std::int64_t>(v[0]);
+  r.n_inside = static_cast<std::int64_t>(v[1]);
+  r.n_buffer = static_cast<std::int64_t>(v[2]);
+  r.n_outside = static_cast<std::int64_t>(v[3]);
+  r.mass_total = v[4];
+  r.mass_inside = v[5];
+  r.mass_with_layer = v[6];
+  r.polar_inertia = v[7];
+  r.polar_inertia_with_layer = v[8];
+  r.polar_inertia_total = v[9];
+  r.mean_age = r.n_particles > 0 ? v[10] / static_cast<double>(r.n_particles) : 0.0;
+  r.max_age = distribution_->max(r.max_age);
   return r;
 }
 

@@ -787,6 +787,17 @@ RunComparison compare_runs(const DomainPtr& domain, const std::vector<ConstantBo
     }
     r.dx = std::max(r.dx, (a.positions()[p] - b.positions()[static_cast<std::size_t>(q)]).norm() / size);
   }
+  // The measures of the run, over all ranks (collective), against the serial ones.
+  const Vec3 centre = 0.5 * (box.lo + box.hi);
+  const StateMeasures ma = serial.measure(centre), mb = dist.measure(centre);
+  EXPECT_EQ(ma.n_particles, mb.n_particles);
+  EXPECT_EQ(ma.n_inside, mb.n_inside);
+  EXPECT_EQ(ma.n_buffer, mb.n_buffer);
+  EXPECT_NEAR(ma.mass_inside, mb.mass_inside, 1e-12 * ma.mass_total);
+  EXPECT_NEAR(ma.polar_inertia, mb.polar_inertia, 1e-8 * ma.polar_inertia_total);
+  EXPECT_NEAR(ma.mean_age, mb.mean_age, 1e-12 * (ma.max_age + 1.0));
+  EXPECT_EQ(ma.max_age, mb.max_age);
+  EXPECT_NEAR(serial.blob_mass(), dist.blob_mass(), 1e-8 * ma.mass_total);
   const SimulationLedger& la = serial.ledger();
   const SimulationLedger& lb = dist.ledger();
   r.inserted = la.inserted;

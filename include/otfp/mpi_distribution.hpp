@@ -63,6 +63,7 @@ class MpiDistribution final : public RunDistribution {
   ParticleSet nearby(const ParticleSet& owned, double radius, const Periodicity& periodicity) override;
   double max(double v) override;
   double sum(double v) override;
+  void sum(double* v, int n) override;
   std::int64_t sum(std::int64_t v) override;
 
   const MpiDistributionStats& stats() const { return stats_; }

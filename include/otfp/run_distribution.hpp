@@ -63,6 +63,7 @@ class RunDistribution {
 
   // Sums over the processes (collective).
   virtual double sum(double v) = 0;
+  virtual void sum(double* v, int n) = 0;  // each of v[0 ... n) in place
   virtual std::int64_t sum(std::int64_t v) = 0;
 };
 

@@ -38,21 +38,10 @@ int SlabLayout::owner(const Vec3& x) const {
   return static_cast<int>(std::upper_bound(cuts.begin(), cuts.end(), x[axis]) - cuts.begin());
 }
 
-namespace {
-
-// The world, started if need be. The caller holds petsc_mutex() for its MPI
-// calls (MPI_THREAD_SERIALIZED).
-MPI_Comm world() {
-  detail::ensure_petsc();
-  return PETSC_COMM_WORLD;
-}
-
-}  // namespace
-
 SlabLayout balanced_slabs(const std::vector<Vec3>& owned_x, int axis) {
   require(axis >= 0 && axis < 3, "axis", axis, "must be 0, 1 or 2");
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
-  const MPI_Comm comm = world();
+  const MPI_Comm comm = detail::world_comm();
   int size = 1;
   MPI_Comm_size(comm, &size);
   SlabLayout layout;
@@ -108,7 +97,7 @@ int BisectionLayout::ranks() const {
 BisectionLayout balanced_bisection(const std::vector<Vec3>& owned_x, int dim) {
   require(dim >= 1 && dim <= 3, "dim", dim, "must be 1, 2 or 3");
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
-  const MPI_Comm comm = world();
+  const MPI_Comm comm = detail::world_comm();
   int size = 1;
   MPI_Comm_size(comm, &size);
   BisectionLayout layout;
@@ -204,7 +193,7 @@ BisectionLayout balanced_bisection(const std::vector<Vec3>& owned_x, int dim) {
 
 std::size_t migrate(ParticleSet& owned, const Layout& layout) {
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
-  const MPI_Comm comm = world();
+  const MPI_Comm comm = detail::world_comm();
   int size = 1, rank = 0;
   MPI_Comm_size(comm, &size);
   MPI_Comm_rank(comm, &rank);

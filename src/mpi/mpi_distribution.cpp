@@ -23,11 +23,6 @@ using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
-MPI_Comm world() {
-  detail::ensure_petsc();
-  return PETSC_COMM_WORLD;
-}
-
 // The particles `which` of every rank's `part`, on every rank, in id order.
 ParticleSet gather_union(const ParticleSet& part, const std::vector<std::size_t>& which, MPI_Comm comm) {
   constexpr int kDoubles = detail::ParticleRecords::kDoubles;
@@ -69,7 +64,7 @@ void MpiDistributionOptions::validate() const {
 MpiDistribution::MpiDistribution(MpiDistributionOptions options) : options_(options) {
   options_.validate();
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
-  world();
+  detail::world_comm();
 }
 
 MpiDistribution::~MpiDistribution() = default;
@@ -100,7 +95,7 @@ bool MpiDistribution::root() const { return rank() == 0; }
 ParticleSet MpiDistribution::nearby(const ParticleSet& owned, double radius, const Periodicity& periodicity) {
   require(std::isfinite(radius) && radius >= 0.0, "radius", radius, "must be finite and >= 0");
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
-  const MPI_Comm comm = world();
+  const MPI_Comm comm = detail::world_comm();
   const std::vector<double> boxes = detail::all_boxes(owned.positions(), comm);
   const int me = rank(), ranks = size();
   std::vector<std::vector<std::size_t>> to(static_cast<std::size_t>(ranks));
@@ -122,21 +117,26 @@ ParticleSet MpiDistribution::nearby(const ParticleSet& owned, double radius, con
 double MpiDistribution::max(double v) {
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   double out = 0.0;
-  MPI_Allreduce(&v, &out, 1, MPI_DOUBLE, MPI_MAX, world());
+  MPI_Allreduce(&v, &out, 1, MPI_DOUBLE, MPI_MAX, detail::world_comm());
   return out;
 }
 
 double MpiDistribution::sum(double v) {
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   double out = 0.0;
-  MPI_Allreduce(&v, &out, 1, MPI_DOUBLE, MPI_SUM, world());
+  MPI_Allreduce(&v, &out, 1, MPI_DOUBLE, MPI_SUM, detail::world_comm());
   return out;
+}
+
+void MpiDistribution::sum(double* v, int n) {
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_DOUBLE, MPI_SUM, detail::world_comm());
 }
 
 std::int64_t MpiDistribution::sum(std::int64_t v) {
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   std::int64_t out = 0;
-  MPI_Allreduce(&v, &out, 1, MPI_INT64_T, MPI_SUM, world());
+  MPI_Allreduce(&v, &out, 1, MPI_INT64_T, MPI_SUM, detail::world_comm());
   return out;
 }
 
@@ -144,7 +144,7 @@ PatchLedger MpiDistribution::project(BoundaryProjection& projection, ParticleSet
                                      Rng& rng, std::int64_t max_particles) {
   const auto t0 = Clock::now();
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
-  const MPI_Comm comm = world();
+  const MPI_Comm comm = detail::world_comm();
   // What the projection reads, by the largest width anywhere.
   double s_max = 0.0;
   for (double s : owned.widths()) s_max = std::max(s_max, s);
@@ -199,7 +199,7 @@ PatchLedger MpiDistribution::project(BoundaryProjection& projection, ParticleSet
 void MpiDistribution::redistribute(ParticleSet& owned) {
   const auto t0 = Clock::now();
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
-  const MPI_Comm comm = world();
+  const MPI_Comm comm = detail::world_comm();
   std::int64_t counts[2] = {static_cast<std::int64_t>(owned.size()), static_cast<std::int64_t>(owned.size())};
   MPI_Allreduce(MPI_IN_PLACE, &counts[0], 1, MPI_INT64_T, MPI_MAX, comm);
   MPI_Allreduce(MPI_IN_PLACE, &counts[1], 1, MPI_INT64_T, MPI_SUM, comm);
@@ -217,9 +217,9 @@ ParticleSet all_particles(const ParticleSet& owned) {
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
   std::vector<std::size_t> every(owned.size());
   std::iota(every.begin(), every.end(), std::size_t{0});
-  ParticleSet out = gather_union(owned, every, world());
+  ParticleSet out = gather_union(owned, every, detail::world_comm());
   std::int64_t next = owned.next_id();
-  MPI_Allreduce(MPI_IN_PLACE, &next, 1, MPI_INT64_T, MPI_MAX, world());
+  MPI_Allreduce(MPI_IN_PLACE, &next, 1, MPI_INT64_T, MPI_MAX, detail::world_comm());
   out.set_next_id(std::max<std::int64_t>(next, out.next_id()));
   return out;
 }

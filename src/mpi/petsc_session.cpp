@@ -50,6 +50,11 @@ void ensure_petsc() {
   });
 }
 
+MPI_Comm world_comm() {
+  ensure_petsc();
+  return PETSC_COMM_WORLD;
+}
+
 }  // namespace otfp::detail
 
 namespace otfp {

@@ -20,6 +20,10 @@ void petsc_check(PetscErrorCode ierr, const char* what);
 // (inside TAO, under the lock) evaluates the distributed functional.
 std::recursive_mutex& petsc_mutex();
 
+// PETSC_COMM_WORLD, MPI and PETSc started if need be. The caller holds
+// petsc_mutex() for its MPI calls (MPI_THREAD_SERIALIZED).
+MPI_Comm world_comm();
+
 }  // namespace otfp::detail
 
 #include "../minimizer_backends.hpp"
