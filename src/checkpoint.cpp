@@ -277,14 +277,15 @@ std::string Simulation::checkpoint_extra(const std::filesystem::path& path) {
 void Simulation::save_checkpoint(const std::filesystem::path& path, const std::string& extra) const {
   require_started("save_checkpoint");
   if (!distribution_) {
-    write_checkpoint(path, extra, particles_);
+    write_checkpoint(path, extra, particles_, implicit_ ? implicit_->history_state() : HistoryState{});
     return;
   }
   const ParticleSet all = distribution_->gather(particles_);
+  const HistoryState history = distribution_->gathered_history();
   std::exception_ptr failed;
   if (distribution_->root()) {
     try {
-      write_checkpoint(path, extra, all);
+      write_checkpoint(path, extra, all, history);
     } catch (...) {
       failed = std::current_exception();
     }
@@ -295,7 +296,7 @@ void Simulation::save_checkpoint(const std::filesystem::path& path, const std::s
 }
 
 void Simulation::write_checkpoint(const std::filesystem::path& path, const std::string& extra,
-                                  const ParticleSet& particles) const {
+                                  const ParticleSet& particles, const HistoryState& hs) const {
   Writer w;
   w.bytes().append(kMagic, sizeof(kMagic));
   w.put(static_cast<std::int32_t>(domain_->dim()));
@@ -331,8 +332,6 @@ void Simulation::write_checkpoint(const std::filesystem::path& path, const std::
     w.put(static_cast<std::uint64_t>(c.size()));
     for (double v : c) w.put(v);
   }
-  ImplicitStepper::HistoryState hs;
-  if (implicit_) hs = implicit_->history_state();
   w.put(hs.dt1);
   w.put(hs.dt2);
   w.put(static_cast<std::uint64_t>(hs.entries.size()));
@@ -387,6 +386,7 @@ void Simulation::load_checkpoint(const std::filesystem::path& path, std::string*
   const bool was_started = started_;
   const TimeGrid grid = grid_;
   const SimulationStep initial = initial_;
+  const HistoryState history = distribution_->local_history();
   save_state();
   std::exception_ptr failed;
   try {
@@ -397,6 +397,7 @@ void Simulation::load_checkpoint(const std::filesystem::path& path, std::string*
   if (distribution_->sum(std::int64_t{failed ? 1 : 0}) > 0) {
     if (!failed) {
       restore_state();
+      distribution_->restore_history(history);
       started_ = was_started;
       grid_ = grid;
       initial_ = initial;
@@ -491,9 +492,15 @@ void Simulation::load_checkpoint_file(const std::filesystem::path& path, std::st
     Rng(0).set_state(rs);
     const BoundaryProjection::State old = projection_->state();
     projection_->restore(ps);
-    if (implicit_) {
+    // Over several processes the root keeps the particles until they are
+    // redistributed, and their history with them; the others keep none.
+    if (distribution_ && !distribution_->root()) hs.entries.clear();
+    if (implicit_ || distribution_) {
       try {
-        implicit_->restore_history(hs);
+        if (implicit_)
+          implicit_->restore_history(hs);
+        else
+          distribution_->restore_history(hs);
       } catch (...) {
         projection_->restore(old);
         throw;

@@ -414,6 +414,7 @@ void Simulation::start(ParticleSet particles, Rng rng, double t0) {
   ledger_.initial_particles = given;
   ledger_.initial_mass = distribution_ ? distribution_->sum(particles_.total_mass()) : particles_.total_mass();
   if (implicit_) implicit_->reset_history();
+  if (distribution_) distribution_->reset_history();
   initial_ = SimulationStep{};
   initial_.t_start = initial_.t_end = t0;
   initial_.diffusion.accepted = true;
@@ -479,7 +480,8 @@ SimulationStep Simulation::take_step(double t0, double t1, double max_error) {
     s.diffusion.accepted = true;
     s.diffusion.dt = h;
   } else if (distribution_) {
-    s.diffusion = distribution_->diffuse(particles_, h);
+    s.diffusion = distribution_->diffuse(particles_, h, max_error);
+    if (s.diffusion.accepted) history_updated_ = true;
   } else if (implicit_) {
     s.diffusion = implicit_->step(particles_, h, max_error);
     if (s.diffusion.accepted) history_updated_ = true;
@@ -633,7 +635,12 @@ void Simulation::restore_state() {
   time_ = s.time;
   dt_next_ = s.dt_next;
   step_ = s.step;
-  if (history_updated_) implicit_->undo_last_history_update();
+  if (history_updated_) {
+    if (distribution_)
+      distribution_->undo_last_history_update();
+    else
+      implicit_->undo_last_history_update();
+  }
   history_updated_ = false;
 }
 
@@ -681,8 +688,7 @@ SimulationStep Simulation::advance_adaptive(double t_limit) {
   require_started("advance_adaptive");
   require(std::isfinite(t_limit) && t_limit > time_, "t_limit", t_limit,
           format("must be finite and > the current time {}", time_));
-  if (distribution_) throw InvalidArgument("advance_adaptive: a distributed run takes fixed steps (no error estimate yet)");
-  if (!implicit_) throw InvalidArgument("stepper = \"explicit\": adaptive steps need the implicit stepper's error estimate");
+  if (!implicit_ && !distribution_) throw InvalidArgument("stepper = \"explicit\": adaptive steps need the implicit stepper's error estimate");
   require(dt_next_ > 0.0, "next dt", dt_next_, "must be set (set_next_dt) before the first adaptive step");
   return guarded([&] { return advance_adaptive_impl(t_limit); });
 }

@@ -38,9 +38,11 @@ class DistributedFunctional {
   DistributedFunctional(const DistributedFunctional&) = delete;
   DistributedFunctional& operator=(const DistributedFunctional&) = delete;
 
-  // This rank's owned particles: reference configuration (x^k, s^k) and
-  // masses. Collective; the next evaluation rebuilds the ghosts.
-  void set_reference(const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref, const std::vector<double>& m);
+  // This rank's owned particles: reference configuration (x^k, s^k),
+  // masses and transport weights (Functional::set_reference; empty: 1).
+  // Collective; the next evaluation rebuilds the ghosts.
+  void set_reference(const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref, const std::vector<double>& m,
+                     std::vector<double> transport_weights = {});
 
   // F at this rank's (x, s) and everyone else's (collective): the parts are
   // sums over all ranks; grad (if not null) is the gradient with respect to
@@ -57,7 +59,13 @@ class DistributedFunctional {
   void set_dt(double dt);  // the transport term's step (> 0)
   std::size_t owned() const;
   const ExchangeStats& exchange() const;
-  const NeighborList& list() const;  // over this rank's particles, then its ghosts
+  const NeighborList& list() const;  // over this rank's particles, then its ghosts, then images
+  std::size_t ghosts() const;        // ghosts of the last build (list rows owned() ... owned() + ghosts())
+
+  // Per-particle data of the owners at the ghosts of the last build
+  // (collective): own holds k values per owned particle; the result k per
+  // ghost, in the list's ghost order.
+  std::vector<double> ghost_values(const std::vector<double>& own, int k);
 
  private:
   struct Impl;

@@ -7,21 +7,26 @@
 // taken over all ranks). A serial step with solver.backend = "tao" solves the
 // same problem with the same optimiser.
 //
-// Today: implicit Euler without predictor, fixed or per-particle widths,
-// either stopping norm, a Barrier and periodic axes. Refused (InvalidArgument
-// naming the field): a backend other than TAO, BDF2, a predictor. A failed
-// solve is retried as 2, 4, ... substeps (max_halvings) and accepted
-// positions are wrapped into a periodic box, as serially. Not yet, and
-// ignored: the error estimate (NaN), sort_particles; there is no external
-// potential. Image blobs: functional().set_images().
+// The serial stepper's options: implicit Euler or variational BDF2, the
+// predictor, fixed or per-particle widths, either stopping norm, the local
+// error estimate (either measure), a Barrier and periodic axes; the solve is
+// the serial one (src/step_solve.cpp). Each rank keeps the history of the
+// particles it owns (StepHistory); the caller moves entries with their
+// particles (history()). Refused (InvalidArgument naming the field): a
+// backend other than TAO. A failed solve is retried as 2, 4, ... substeps
+// (max_halvings) and accepted positions are wrapped into a periodic box, as
+// serially. Ignored: sort_particles; there is no external potential. Image
+// blobs: functional().set_images().
 //
 // One distributed step (or functional evaluation) per process at a time:
 // two threads of one process running collectives on the same world would
 // interleave them differently on different ranks.
+#include <limits>
 #include <memory>
 
 #include "otfp/distributed_functional.hpp"
 #include "otfp/implicit_stepper.hpp"
+#include "otfp/step_history.hpp"
 
 namespace otfp {
 
@@ -41,7 +46,12 @@ class DistributedImplicitStepper {
   // throw InvalidArgument before any work; an error inside the solve on one
   // rank only (an exception in its share of F) aborts the world (MPI_Abort)
   // with the reason on stderr, as the other ranks wait in a collective.
-  StepSummary step(ParticleSet& owned, double dt);
+  // max_error: as ImplicitStepper::step (a step whose global error estimate
+  // exceeds it is not taken; error_rejected, the history kept).
+  StepSummary step(ParticleSet& owned, double dt, double max_error = std::numeric_limits<double>::infinity());
+
+  // This rank's share of the history (its own particles' entries).
+  StepHistory& history();
 
   const ExchangeStats& exchange() const;
   DistributedFunctional& functional();

@@ -14,6 +14,7 @@
 #include "otfp/external_potential.hpp"
 #include "otfp/functional.hpp"
 #include "otfp/minimizer.hpp"
+#include "otfp/step_history.hpp"
 #include "otfp/step_summary.hpp"
 #include "otfp/enums.hpp"
 
@@ -62,16 +63,8 @@ class ImplicitStepper {
   std::size_t history_size() const { return history_.size(); }
   // The history as data (for checkpoints), entries sorted by id; importing
   // it into a stepper built with the same options continues bit for bit.
-  struct HistoryEntry {
-    ParticleId id = 0;
-    Vec3 d1 = Vec3::Zero(), d2 = Vec3::Zero();
-    double ds1 = 0.0, ds2 = 0.0;
-    int count = 0;
-  };
-  struct HistoryState {
-    std::vector<HistoryEntry> entries;
-    double dt1 = 0.0, dt2 = 0.0;
-  };
+  using HistoryEntry = otfp::HistoryEntry;
+  using HistoryState = otfp::HistoryState;
   HistoryState history_state() const;
   void restore_history(const HistoryState& state);  // throws InvalidArgument for a bad entry
   // Puts back the history (and the last two step sizes) of before the last
@@ -87,7 +80,7 @@ class ImplicitStepper {
   // leave the barrier domain or cross a mirrored wall; x itself for particles
   // with no history.
   std::vector<Vec3> predict(const ParticleSet& particles, double dt) const;
-  double previous_dt() const { return dt1_; }
+  double previous_dt() const { return history_.dt1(); }
   // The objective an Euler step of length dt from `particles` minimises, in
   // the minimiser's scaled unknowns (positions, then widths with
   // PerParticle), and the start z^k: for gradient checks. Uses (and moves the
@@ -103,37 +96,18 @@ class ImplicitStepper {
   Barrier& barrier() { return functional_.barrier().barrier(); }
 
  private:
-  // Per-particle history, aligned with the particles during a step.
-  struct History {
-    Vec3 d1 = Vec3::Zero(), d2 = Vec3::Zero();  // x^k - x^{k-1}, x^{k-1} - x^{k-2} (diffusive part)
-    double ds1 = 0.0, ds2 = 0.0;                // the same for widths
-    int count = 0;                              // how many of d1, d2 are known
-  };
-  bool solve(std::vector<Vec3>& x, std::vector<double>& s, const std::vector<double>& m, std::vector<History>& hist,
-             double& dt1, double& dt2, double dt, StepSummary& summary);
-  Vec3 admissible_start(const Vec3& from, const Vec3& to) const;
   // The local error estimates of a solved step from x, s to x_new, s_new
-  // (Milne's device), into summary's error fields.
-  void estimate_local_error(const std::vector<Vec3>& x, const std::vector<double>& s,
-                            const std::vector<Vec3>& x_new, const std::vector<double>& s_new,
-                            const std::vector<double>& m, const std::vector<History>& hist, double dt, double dt1,
-                            double dt2, StepSummary& summary) const;
-  double density_error_estimate(const std::vector<Vec3>& x_new, const std::vector<double>& s_new,
-                                const std::vector<double>& m, const std::vector<Vec3>& ex,
-                                const std::vector<double>& es, const std::vector<char>& has, double factor) const;
-  static constexpr double kErrorKernelTolerance = 1e-6;
-  // Factor g of the predicted displacement g d1 for a step w = dt / dt_{k-1} times the last.
-  static double predictor_factor(Predictor predictor, const History& h, double omega);
+  // (Milne's device), into summary's error fields; ids: the particles'.
+  void estimate_local_error(const std::vector<ParticleId>& ids, const std::vector<Vec3>& x,
+                            const std::vector<double>& s, const std::vector<Vec3>& x_new,
+                            const std::vector<double>& s_new, const std::vector<double>& m,
+                            const std::vector<DisplacementHistory>& hist, double dt, double dt1, double dt2,
+                            StepSummary& summary) const;
   int dim_;
   ImplicitOptions options_;
   Functional functional_;
   ExternalPotential external_;
-  std::unordered_map<ParticleId, History> history_;
-  double dt1_ = 0.0, dt2_ = 0.0;  // the last two step sizes (0: none)
-  // The history before the last accepted step (undo_last_history_update()).
-  std::unordered_map<ParticleId, History> previous_history_;
-  double previous_dt1_ = 0.0, previous_dt2_ = 0.0;
-  bool can_undo_history_ = false;
+  StepHistory history_;
 };
 
 }  // namespace otfp

@@ -54,7 +54,12 @@ class MpiDistribution final : public RunDistribution {
 
   void configure(int dim, const ImplicitOptions& options, const Barrier& barrier, const Periodicity& periodicity,
                  const std::vector<MirrorWallPtr>& walls) override;
-  StepSummary diffuse(ParticleSet& owned, double dt) override;
+  StepSummary diffuse(ParticleSet& owned, double dt, double max_error) override;
+  void reset_history() override;
+  void undo_last_history_update() override;
+  HistoryState local_history() const override;
+  void restore_history(const HistoryState& state) override;
+  HistoryState gathered_history() override;
   PatchLedger project(BoundaryProjection& projection, ParticleSet& owned, double t, double dt, Rng& rng,
                       std::int64_t max_particles) override;
   void redistribute(ParticleSet& owned) override;
@@ -72,6 +77,7 @@ class MpiDistribution final : public RunDistribution {
   int size() const override;
 
  private:
+  DistributedImplicitStepper& stepper() const;
   MpiDistributionOptions options_;
   int dim_ = 3;
   std::unique_ptr<DistributedImplicitStepper> stepper_;

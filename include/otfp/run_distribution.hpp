@@ -16,6 +16,7 @@
 #include "otfp/images.hpp"
 #include "otfp/implicit_stepper.hpp"
 #include "otfp/particles.hpp"
+#include "otfp/step_history.hpp"
 #include "otfp/step_summary.hpp"
 
 namespace otfp {
@@ -32,8 +33,18 @@ class RunDistribution {
                          const Periodicity& periodicity, const std::vector<MirrorWallPtr>& walls) = 0;
 
   // The implicit step of the union of the shares, on this process's share
-  // (collective; accepted or refused on every process alike).
-  virtual StepSummary diffuse(ParticleSet& owned, double dt) = 0;
+  // (collective; accepted or refused on every process alike). max_error: as
+  // ImplicitStepper::step (infinity: no error control).
+  virtual StepSummary diffuse(ParticleSet& owned, double dt, double max_error) = 0;
+
+  // The step's history (otfp/step_history.hpp) of this process's particles;
+  // redistribute() moves each entry with its particle. As ImplicitStepper's:
+  virtual void reset_history() = 0;
+  virtual void undo_last_history_update() = 0;
+  virtual HistoryState local_history() const = 0;               // this process's entries
+  virtual void restore_history(const HistoryState& state) = 0;  // this process's entries (InvalidArgument if bad)
+  // Every process's entries, sorted by id, on every process (collective).
+  virtual HistoryState gathered_history() = 0;
 
   // projection.apply(union, t, dt, rng) as a serial run would do it: every
   // process's projection state, `rng` and returned ledger advance alike, and

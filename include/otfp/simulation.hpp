@@ -327,7 +327,7 @@ class Simulation {
   PatchLedger project(double t, double dt);  // the projection, serial or over the distribution
   double share_blob_mass(const BlobMassOptions& options) const;  // blob_mass() of this process's particles
   void write_checkpoint(const std::filesystem::path& path, const std::string& extra,
-                        const ParticleSet& particles) const;
+                        const ParticleSet& particles, const HistoryState& history) const;
   void load_checkpoint_file(const std::filesystem::path& path, std::string* extra);
   DomainPtr domain_;
   std::vector<ConstantBoundaryData> boundary_;

@@ -81,7 +81,7 @@ struct DistributedFunctional::Impl {
   PetscSF sf = nullptr;
 
   std::vector<Vec3> x_ref;
-  std::vector<double> s_ref, m;
+  std::vector<double> s_ref, m, weights;  // weights: the transport's (BDF2), empty for 1
   std::size_t n_owned = 0;
   bool stale = true;  // set_reference() or no build yet
 
@@ -308,9 +308,14 @@ DistributedFunctional::DistributedFunctional(int dim, FunctionalOptions options,
 DistributedFunctional::~DistributedFunctional() = default;
 
 void DistributedFunctional::set_reference(const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref,
-                                          const std::vector<double>& m) {
+                                          const std::vector<double>& m, std::vector<double> transport_weights) {
   require(s_ref.size() == x_ref.size() && m.size() == x_ref.size(), "reference sizes",
           static_cast<double>(s_ref.size()), "x_ref, s_ref and m must have one entry per owned particle");
+  require(transport_weights.empty() || transport_weights.size() == m.size(), "transport_weights size",
+          static_cast<double>(transport_weights.size()), "must be 0 or the number of owned particles");
+  for (double a : transport_weights)
+    require(std::isfinite(a) && a > 0.0, "transport weight", a, "must be finite and > 0");
+  impl_->weights = std::move(transport_weights);
   impl_->x_ref = x_ref;
   impl_->s_ref = s_ref;
   impl_->m = m;
@@ -339,7 +344,7 @@ FunctionalParts DistributedFunctional::evaluate(const std::vector<Vec3>& x, cons
     grad->resize(n, widths);
     d.scratch.resize(n_ext, widths);
   }
-  parts.transport = d.transport.evaluate(x, s, d.m, d.x_ref, d.s_ref, grad);
+  parts.transport = d.transport.evaluate(x, s, d.m, d.x_ref, d.s_ref, grad, d.weights);
   parts.entropy = d.entropy.evaluate(d.x_local, d.s_local, d.m_local, d.list, grad ? &d.scratch : nullptr, n);
   if (grad) {
     if (d.images.active()) {
@@ -403,5 +408,24 @@ void DistributedFunctional::set_dt(double dt) {
 std::size_t DistributedFunctional::owned() const { return impl_->m.size(); }
 const ExchangeStats& DistributedFunctional::exchange() const { return impl_->stats; }
 const NeighborList& DistributedFunctional::list() const { return impl_->list; }
+
+std::size_t DistributedFunctional::ghosts() const { return impl_->n_ghosts; }
+
+std::vector<double> DistributedFunctional::ghost_values(const std::vector<double>& own, int k) {
+  Impl& d = *impl_;
+  require(k >= 1, "k", k, "must be >= 1");
+  require(own.size() == d.n_owned * static_cast<std::size_t>(k), "own values", static_cast<double>(own.size()),
+          "must be k per owned particle of the last build");
+  require(d.sf != nullptr, "ghost_values", 0.0, "needs a build (an evaluation) first");
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  std::vector<double> out(d.n_ghosts * static_cast<std::size_t>(k));
+  MPI_Datatype row = MPI_DATATYPE_NULL;
+  MPI_Type_contiguous(k, MPI_DOUBLE, &row);
+  MPI_Type_commit(&row);
+  detail::petsc_check(PetscSFBcastBegin(d.sf, row, own.data(), out.data(), MPI_REPLACE), "PetscSFBcastBegin");
+  detail::petsc_check(PetscSFBcastEnd(d.sf, row, own.data(), out.data(), MPI_REPLACE), "PetscSFBcastEnd");
+  MPI_Type_free(&row);
+  return out;
+}
 
 }  // namespace otfp

@@ -1,13 +1,15 @@
-// One implicit Euler step (28) over the ranks (otfp/distributed_stepper.hpp).
+// One implicit step (28) over the ranks (otfp/distributed_stepper.hpp).
 //
-// The serial stepper's problem, shared: the objective is StepObjective (the
-// scaled unknowns z = sqrt(m/dt) x and z_s = b log(s/s^k), the stopping
-// measure) on a StepFunctional whose F is the DistributedFunctional's and
-// whose reductions are MPI's; the thresholds are step_tolerances() of the
-// global smallest width and mass, total mass and F; minimize_with() runs the
-// library's start checks and relative rule around TAO on PETSC_COMM_WORLD.
-// Every verdict (converged, non-finite, energy inequality) is computed from
-// global values, so all ranks accept or refuse the step together.
+// The serial stepper's solve (src/step_solve.cpp), with the distributed
+// hooks: the objective's functional is the DistributedFunctional's F, whose
+// reductions (the stopping measure's RMS and max, a non-finite point, the
+// thresholds' smallest width and mass) are MPI_Allreduce's; the minimiser is
+// TAO on PETSC_COMM_WORLD; the local error estimate sums over the ranks, with
+// the error field of the ghosts sent by their owners (the smoothing over the
+// neighbour list) and the blobs within the smoothed kernel's reach of a
+// rank's probes sent to it (the density estimate). Every verdict (converged,
+// non-finite, the energy inequality, the error test) is computed from global
+// values, so all ranks accept or refuse the step together.
 #include "otfp/distributed_stepper.hpp"
 
 #include <mpi.h>
@@ -24,7 +26,9 @@
 
 #include "../minimizer_backends.hpp"
 #include "../step_objective.hpp"
+#include "../step_solve.hpp"
 #include "otfp/tao.hpp"
+#include "particle_exchange.hpp"
 #include "petsc_session.hpp"
 
 namespace otfp {
@@ -49,10 +53,6 @@ void require_supported(const ImplicitOptions& o) {
   o.validate();
   require(o.minimizer.backend == Backend::Tao, "minimizer.backend", to_string(o.minimizer.backend),
           "a distributed step is solved by TAO: must be tao");
-  require(o.time_scheme == TimeScheme::Euler, "time_scheme", to_string(o.time_scheme),
-          "a distributed step is implicit Euler only (BDF2 not yet)");
-  require(o.predictor == Predictor::None, "predictor", to_string(o.predictor),
-          "a distributed step starts from x^k (no predictor yet)");
 }
 
 }  // namespace
@@ -60,16 +60,15 @@ void require_supported(const ImplicitOptions& o) {
 struct DistributedImplicitStepper::Impl {
   int dim;
   ImplicitOptions options;
+  Barrier barrier;  // the predictor's admissible start (the functional holds its own)
   DistributedFunctional functional;
   MPI_Comm comm = MPI_COMM_NULL;
-
+  ExternalPotential none;
   Periodicity periodicity;
+  StepHistory history;
 
   Impl(int d, const ImplicitOptions& o, Barrier b, Periodicity p)
-      : dim(d), options(o), functional(d, detail::functional_options(o), std::move(b), p), periodicity(p) {}
-
-  bool solve(std::vector<Vec3>& x, std::vector<double>& s, const std::vector<double>& m, double dt,
-             StepSummary& summary);
+      : dim(d), options(o), barrier(b), functional(d, detail::functional_options(o), std::move(b), p), periodicity(p) {}
 
   detail::StepFunctional step_functional() {
     detail::StepFunctional sf;
@@ -91,7 +90,124 @@ struct DistributedImplicitStepper::Impl {
     };
     return sf;
   }
+
+  detail::StepSolveHooks hooks(const std::vector<ParticleId>& ids) {
+    detail::StepSolveHooks h;
+    h.functional = step_functional();
+    h.external = &none;
+    h.prepare = [this](double dt, const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref,
+                       const std::vector<double>& m, const std::vector<double>& weights, const std::vector<Vec3>&,
+                       const std::vector<double>&) {
+      functional.set_dt(dt);
+      functional.set_reference(x_ref, s_ref, m, weights);  // the ghosts and list are rebuilt at the next evaluation
+    };
+    h.admissible_start = [this](const Vec3& from, const Vec3& to) {
+      return detail::admissible_start(barrier, functional.images().walls(), from, to);
+    };
+    h.minimize = [this](Objective& objective, std::vector<double>& z, const MinimizerOptions& mo) {
+      mo.validate();
+      return detail::minimize_with(objective, z, mo, detail::run_tao_world, step_functional().all);
+    };
+    h.estimate = [this, &ids](const std::vector<Vec3>& x, const std::vector<double>& s,
+                              const std::vector<Vec3>& x_new, const std::vector<double>& s_new,
+                              const std::vector<double>& m, const std::vector<DisplacementHistory>& hist, double dt,
+                              double dt1, double dt2, StepSummary& summary) {
+      estimate(ids, x, s, x_new, s_new, m, hist, dt, dt1, dt2, summary);
+    };
+    h.on_collective_error = [this](const char* what) { abort_unless_alone(comm, what); };
+    return h;
+  }
+
+  void estimate(const std::vector<ParticleId>& ids, const std::vector<Vec3>& x, const std::vector<double>& s,
+                const std::vector<Vec3>& x_new, const std::vector<double>& s_new, const std::vector<double>& m,
+                const std::vector<DisplacementHistory>& hist, double dt, double dt1, double dt2,
+                StepSummary& summary);
+  double density_error(const std::vector<ParticleId>& ids, const std::vector<Vec3>& x_new,
+                       const std::vector<double>& s_new, const std::vector<double>& m, const detail::MilneErrors& e);
 };
+
+// The serial estimate (ImplicitStepper::estimate_local_error) over the
+// ranks: the smoothing of a particle's error over its list neighbours takes
+// the ghosts' errors from their owners (the list's pair set is the serial
+// one, built at the same positions), and the sums are global.
+void DistributedImplicitStepper::Impl::estimate(const std::vector<ParticleId>& ids, const std::vector<Vec3>& x,
+                                                const std::vector<double>& s, const std::vector<Vec3>& x_new,
+                                                const std::vector<double>& s_new, const std::vector<double>& m,
+                                                const std::vector<DisplacementHistory>& hist, double dt, double dt1,
+                                                double dt2, StepSummary& summary) {
+  const detail::MilneErrors e = detail::milne_errors(options, x, s, x_new, s_new, hist, dt, dt1, dt2);
+  if (!(e.factor > 0.0)) return;  // the step sizes decide: every rank alike
+  const std::size_t n = x.size();
+  const double density = options.error_measure == ErrorMeasure::Density ? density_error(ids, x_new, s_new, m, e) : NAN;
+  // The ghosts' rows (new position, width, mass and errors) from their owners.
+  const std::vector<double> own = detail::error_rows(x_new, s_new, m, e);
+  double sums[3] = {0.0, 0.0, 0.0};  // raw, smoothed, mass
+  detail::smoothed_error_sums(options, functional.list(), periodicity, n, own,
+                              functional.ghost_values(own, detail::kErrorRow), sums);
+  MPI_Allreduce(MPI_IN_PLACE, sums, 3, MPI_DOUBLE, MPI_SUM, comm);
+  detail::record_error_estimates(options, sums[0], sums[1], sums[2], density, summary);
+}
+
+// The density estimate over the ranks: every blob (new and extrapolated)
+// within the smoothed kernel's reach of a rank's bounding box is sent to it,
+// and each rank sums its own probes (chosen by id, detail::is_density_probe).
+double DistributedImplicitStepper::Impl::density_error(const std::vector<ParticleId>& ids,
+                                                       const std::vector<Vec3>& x_new,
+                                                       const std::vector<double>& s_new, const std::vector<double>& m,
+                                                       const detail::MilneErrors& e) {
+  const std::size_t n = x_new.size();
+  int any = std::find(e.has.begin(), e.has.end(), char{1}) != e.has.end() ? 1 : 0;
+  MPI_Allreduce(MPI_IN_PLACE, &any, 1, MPI_INT, MPI_MAX, comm);
+  if (any == 0) return NAN;
+  detail::SmoothedBlobs b = detail::smoothed_blobs(options, x_new, s_new, e);
+  const double tol = detail::density_error_tolerance(options);
+  double w_max = 0.0;
+  for (std::size_t p = 0; p < n; ++p) w_max = std::max({w_max, b.w_new[p], b.w_pred[p]});
+  MPI_Allreduce(MPI_IN_PLACE, &w_max, 1, MPI_DOUBLE, MPI_MAX, comm);
+  const double reach = cutoff_radius(w_max, tol);
+  int size = 1, rank = 0;
+  MPI_Comm_size(comm, &size);
+  MPI_Comm_rank(comm, &rank);
+  const std::vector<double> boxes = detail::all_boxes(x_new, comm);
+  constexpr int k = 9;  // x_new, w_new, m, x_pred, w_pred
+  std::vector<detail::Rows> to(static_cast<std::size_t>(size));
+  for (int r = 0; r < size; ++r) {
+    const double* bx = &boxes[6 * static_cast<std::size_t>(r)];
+    if (r == rank || bx[0] > bx[3]) continue;
+    const Vec3 lo(bx[0], bx[1], bx[2]), hi(bx[3], bx[4], bx[5]);
+    detail::Rows& out = to[static_cast<std::size_t>(r)];
+    for (std::size_t p = 0; p < n; ++p) {
+      if (detail::distance_to_box(x_new[p], lo, hi, periodicity, dim) > reach &&
+          detail::distance_to_box(b.x_pred[p], lo, hi, periodicity, dim) > reach)
+        continue;
+      out.ids.push_back(ids[p]);
+      out.values.insert(out.values.end(), {x_new[p][0], x_new[p][1], x_new[p][2], b.w_new[p], m[p], b.x_pred[p][0],
+                                           b.x_pred[p][1], b.x_pred[p][2], b.w_pred[p]});
+    }
+  }
+  const detail::Rows in = detail::exchange_rows(to, k, comm);
+  std::vector<Vec3> xs = x_new;
+  std::vector<double> ms = m;
+  for (std::size_t i = 0; i < in.ids.size(); ++i) {
+    const double* v = &in.values[i * k];
+    xs.emplace_back(v[0], v[1], v[2]);
+    b.w_new.push_back(v[3]);
+    ms.push_back(v[4]);
+    b.x_pred.emplace_back(v[5], v[6], v[7]);
+    b.w_pred.push_back(v[8]);
+  }
+  std::vector<std::size_t> probes;
+  for (std::size_t p = 0; p < n; ++p)
+    if (detail::is_density_probe(ids[p], dim)) probes.push_back(p);
+  detail::DensityErrorSums sums =
+      detail::density_error_sums(dim, xs, b.w_new, b.x_pred, b.w_pred, ms, probes, periodicity, tol, e.factor);
+  double v[3] = {sums.error2, sums.density, sums.mass};
+  MPI_Allreduce(MPI_IN_PLACE, v, 3, MPI_DOUBLE, MPI_SUM, comm);
+  sums.error2 = v[0];
+  sums.density = v[1];
+  sums.mass = v[2];
+  return detail::density_error_from(sums);
+}
 
 DistributedImplicitStepper::DistributedImplicitStepper(int dim, ImplicitOptions options, Barrier barrier,
                                                        Periodicity periodicity) {
@@ -103,90 +219,12 @@ DistributedImplicitStepper::DistributedImplicitStepper(int dim, ImplicitOptions 
 
 DistributedImplicitStepper::~DistributedImplicitStepper() = default;
 
-// One solve of (28) over [t, t + dt] from (x, s): on success (every rank's
-// verdict alike) x and s hold the minimiser.
-bool DistributedImplicitStepper::Impl::solve(std::vector<Vec3>& x, std::vector<double>& s,
-                                             const std::vector<double>& m, double dt, StepSummary& summary) {
-  const ImplicitOptions& o = options;
-  const bool widths = o.width_mode == WidthMode::PerParticle;
-  functional.set_dt(dt);
-  functional.set_reference(x, s, m);
-  const double s_max = o.max_width_factor > 0.0 ? o.max_width_factor * o.nominal_width : 0.0;
-  const ExternalPotential none;
-  // The objective checks this rank's particles (a width above the bound, say)
-  // and may refuse them: all ranks learn of it before any collective, and
-  // all throw (this rank its own message).
-  std::unique_ptr<detail::StepObjective> made;
-  std::exception_ptr refused;
-  try {
-    made = std::make_unique<detail::StepObjective>(step_functional(), none, x, s, m, dt, widths,
-                                                   std::vector<double>{}, s_max);
-  } catch (...) {
-    refused = std::current_exception();
-  }
-  int any_refused = refused ? 1 : 0;
-  MPI_Allreduce(MPI_IN_PLACE, &any_refused, 1, MPI_INT, MPI_MAX, comm);
-  if (refused) std::rethrow_exception(refused);
-  require(any_refused == 0, "particles", 0.0, "refused by another rank (its error names the field)");
-  // From here on every rank runs the same collectives: an exception on one
-  // rank only (its share of F, a PETSc failure) would leave the others
-  // waiting in one, so it aborts the world, with the reason on stderr.
-  try {
-    detail::StepObjective& objective = *made;
-    if (o.stopping_norm == StoppingNorm::Energy) objective.set_max_norm_factor(o.max_norm_factor);
-    std::vector<double> z(objective.num_variables());
-    objective.pack(x, s, z.data());
-
-    // The thresholds of the serial stepper, from global figures.
-    double mins[2] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
-    double mass = 0.0;
-    for (std::size_t p = 0; p < m.size(); ++p) {
-      mins[0] = std::min(mins[0], s[p]);
-      mins[1] = std::min(mins[1], m[p]);
-      mass += m[p];
-    }
-    MPI_Allreduce(MPI_IN_PLACE, mins, 2, MPI_DOUBLE, MPI_MIN, comm);
-    MPI_Allreduce(MPI_IN_PLACE, &mass, 1, MPI_DOUBLE, MPI_SUM, comm);
-    const double s_min = std::isfinite(mins[0]) ? mins[0] : 1.0;
-    const double m_min = std::isfinite(mins[1]) ? mins[1] : 1.0;
-
-    double f0 = 0.0;
-    const bool start_ok = objective.evaluate(z.data(), &f0, nullptr);
-    const FunctionalParts before = objective.parts();
-    const detail::StepTolerances tol = detail::step_tolerances(o, dt, s_min, m_min, mass, before);
-    MinimizerOptions mo = o.minimizer;
-    mo.gradient_tolerance = tol.gradient_tolerance;
-    mo.relative_gradient_tolerance = o.relative_tolerance;  // the papers' path: the rule at x^k
-    mo.gradient_tolerance_floor = tol.floor_measure;
-    mo.start_tolerance = tol.stall_measure;
-    mo.validate();
-
-    MinimizerSummary ms;
-    if (start_ok) ms = detail::minimize_with(objective, z, mo, detail::run_tao_world, step_functional().all);
-    detail::record_solve(ms, start_ok, before, f0, summary);
-    summary.f_start = f0;
-    // Into copies: the objective refers to (x, s) as the step's start.
-    std::vector<Vec3> x_new = x;
-    std::vector<double> s_new = s;
-    if (!detail::accept_solve(objective, z, start_ok, ms, tol, f0, before, o.energy_tolerance, x_new, s_new, summary))
-      return false;
-    x = std::move(x_new);
-    s = std::move(s_new);
-    return true;
-  } catch (const std::exception& e) {
-    abort_unless_alone(comm, e.what());
-    throw;
-  } catch (...) {
-    abort_unless_alone(comm, "an unknown exception");
-    throw;
-  }
-}
-
 // The serial stepper's step: a failed solve is retried as 2, 4, ...
 // substeps (max_halvings), and the accepted positions are wrapped into a
 // periodic box.
-StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
+StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt, double max_error) {
   require(std::isfinite(dt) && dt > 0.0, "dt", dt, "must be finite and > 0");
+  require(!(max_error <= 0.0), "max_error", max_error, "must be > 0 (infinity: no error control)");
   require(owned.dim() == impl_->dim, "particles dim", owned.dim(),
           "must equal the stepper's dim " + std::to_string(impl_->dim));
   const auto t0 = Clock::now();
@@ -195,34 +233,17 @@ StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
   StepSummary summary;
   summary.dt = dt;
   const int builds_before = d.functional.exchange().rebuilds;
-  for (int halvings = 0; halvings <= d.options.max_halvings; ++halvings) {
-    std::vector<Vec3> x = owned.positions();
-    std::vector<double> s = owned.widths();
-    const int substeps = 1 << halvings;
-    const double h = dt / substeps;
-    bool ok = true;
-    FunctionalParts first_before;
-    double first_f = 0.0;
-    for (int k = 0; k < substeps && ok; ++k) {
-      ok = d.solve(x, s, owned.masses(), h, summary);
-      if (k == 0) {
-        first_before = summary.parts_before;
-        first_f = summary.f_before;
-      }
-    }
-    summary.halvings = halvings;
-    if (!ok) {
-      ++summary.rejected_solves;
-      continue;
-    }
-    summary.substeps = substeps;
-    summary.parts_before = first_before;
-    summary.f_before = summary.f_start = first_f;
-    summary.accepted = true;
+  const std::vector<ParticleId>& ids = owned.ids();
+  std::vector<DisplacementHistory> hist = d.history.lookup(ids);
+  detail::StepSolveHooks hooks = d.hooks(ids);
+  std::vector<Vec3> x = owned.positions();
+  std::vector<double> s = owned.widths();
+  double dt1 = d.history.dt1(), dt2 = d.history.dt2();
+  if (detail::step_with_halvings(d.options, hooks, x, s, owned.masses(), hist, dt1, dt2, dt, max_error, summary)) {
     for (Vec3& y : x) y = d.periodicity.wrap(y);
     owned.positions() = std::move(x);
     owned.widths() = std::move(s);
-    break;
+    d.history.commit(ids, hist, dt1, dt2);
   }
   if (!summary.accepted && summary.message.empty()) summary.message = "step rejected";
   summary.list_builds = d.functional.exchange().rebuilds - builds_before;
@@ -230,6 +251,7 @@ StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt) {
   return summary;
 }
 
+StepHistory& DistributedImplicitStepper::history() { return impl_->history; }
 const ExchangeStats& DistributedImplicitStepper::exchange() const { return impl_->functional.exchange(); }
 DistributedFunctional& DistributedImplicitStepper::functional() { return impl_->functional; }
 const ImplicitOptions& DistributedImplicitStepper::options() const { return impl_->options; }

@@ -79,9 +79,58 @@ void MpiDistribution::configure(int dim, const ImplicitOptions& options, const B
   if (!walls.empty()) stepper_->functional().set_images(WallImages(walls));
 }
 
-StepSummary MpiDistribution::diffuse(ParticleSet& owned, double dt) {
+StepSummary MpiDistribution::diffuse(ParticleSet& owned, double dt, double max_error) {
+  return stepper().step(owned, dt, max_error);
+}
+
+DistributedImplicitStepper& MpiDistribution::stepper() const {
   require(stepper_ != nullptr, "MpiDistribution", 0.0, "configure() must come first (the Simulation calls it)");
-  return stepper_->step(owned, dt);
+  return *stepper_;
+}
+
+void MpiDistribution::reset_history() { stepper().history().reset(); }
+void MpiDistribution::undo_last_history_update() { stepper().history().undo_last_update(); }
+HistoryState MpiDistribution::local_history() const { return stepper().history().state(); }
+void MpiDistribution::restore_history(const HistoryState& state) { stepper().history().restore(state); }
+
+namespace {
+constexpr int kHistoryDoubles = 9;  // d1, d2, ds1, ds2, count
+
+void append_entry(detail::Rows& rows, const HistoryEntry& e) {
+  rows.ids.push_back(e.id);
+  rows.values.insert(rows.values.end(), {e.d1[0], e.d1[1], e.d1[2], e.d2[0], e.d2[1], e.d2[2], e.ds1, e.ds2,
+                                         static_cast<double>(e.count)});
+}
+
+HistoryEntry entry_of(const detail::Rows& rows, std::size_t i) {
+  const double* v = &rows.values[i * kHistoryDoubles];
+  HistoryEntry e;
+  e.id = rows.ids[i];
+  e.d1 = Vec3(v[0], v[1], v[2]);
+  e.d2 = Vec3(v[3], v[4], v[5]);
+  e.ds1 = v[6];
+  e.ds2 = v[7];
+  e.count = static_cast<int>(v[8]);
+  return e;
+}
+}  // namespace
+
+HistoryState MpiDistribution::gathered_history() {
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  const MPI_Comm comm = detail::world_comm();
+  const HistoryState mine = local_history();
+  // Every rank's entries to every rank: an all-to-all of the same rows.
+  detail::Rows rows;
+  for (const HistoryEntry& e : mine.entries) append_entry(rows, e);
+  const std::vector<detail::Rows> to(static_cast<std::size_t>(size()), rows);
+  const detail::Rows in = detail::exchange_rows(to, kHistoryDoubles, comm);
+  HistoryState all;
+  all.dt1 = mine.dt1;
+  all.dt2 = mine.dt2;
+  for (std::size_t i = 0; i < in.ids.size(); ++i) all.entries.push_back(entry_of(in, i));
+  std::sort(all.entries.begin(), all.entries.end(),
+            [](const HistoryEntry& a, const HistoryEntry& b) { return a.id < b.id; });
+  return all;
 }
 
 const ExchangeStats& MpiDistribution::exchange() const {
@@ -209,6 +258,23 @@ void MpiDistribution::redistribute(ParticleSet& owned) {
     layout_ = std::make_unique<BisectionLayout>(balanced_bisection(owned.positions(), dim_));
     ++stats_.rebalances;
   }
+  // The history's entries go with their particles (to the owner by the
+  // layout migrate() uses).
+  std::vector<detail::Rows> to(static_cast<std::size_t>(size()));
+  if (stepper_) {
+    const int me = rank();
+    std::vector<std::vector<ParticleId>> leaving(static_cast<std::size_t>(size()));
+    for (std::size_t p = 0; p < owned.size(); ++p) {
+      const int r = layout_->owner(owned.positions()[p]);
+      if (r != me) leaving[static_cast<std::size_t>(r)].push_back(owned.ids()[p]);
+    }
+    for (std::size_t r = 0; r < leaving.size(); ++r)
+      for (const HistoryEntry& e : stepper_->history().extract(leaving[r])) append_entry(to[r], e);
+  }
+  const detail::Rows arrived = detail::exchange_rows(to, kHistoryDoubles, comm);
+  std::vector<HistoryEntry> entries;
+  for (std::size_t i = 0; i < arrived.ids.size(); ++i) entries.push_back(entry_of(arrived, i));
+  if (stepper_) stepper_->history().absorb(entries);
   stats_.migrated_out += static_cast<std::int64_t>(migrate(owned, *layout_));
   stats_.redistribution_seconds += seconds_since(t0);
 }

@@ -23,6 +23,16 @@ struct ParticleRecords {
   void add_to(ParticleSet& into, std::size_t i) const;  // add_with_id of record i
 };
 
+// Rows of an all-to-all: an id and k doubles each.
+struct Rows {
+  std::vector<std::int64_t> ids;
+  std::vector<double> values;  // k per row
+};
+
+// Sends to[r] to rank r (one entry per rank of comm, k doubles per row) and
+// returns what this rank receives, in rank order (collective).
+Rows exchange_rows(const std::vector<Rows>& to, int k, MPI_Comm comm);
+
 // Sends from's particles to[r] to rank r (one list per rank of comm) and
 // returns what this rank receives, in rank order (collective).
 ParticleRecords exchange_particles(const ParticleSet& from, const std::vector<std::vector<std::size_t>>& to,

@@ -15,7 +15,11 @@ Usage: check_mpi_run.py OTFP MPIEXEC WORKDIR
 2. Resume across rank counts: the 2-rank run continued serially to t = 0.4
    and on 3 ranks to t = 0.6 ends where the serial run continued serially
    twice ends.
-3. A configuration the distributed step refuses (the Ceres backend) exits 2
+3. Adaptive steps with variational BDF2 and the damped predictor (the
+   history travels with the particles; dt follows the global error
+   estimate) on 1 and 2 ranks: the same steps, series.csv within the same
+   tolerance (dt included).
+4. A configuration the distributed step refuses (the Ceres backend) exits 2
    with one line naming the key.
 """
 import csv
@@ -121,6 +125,17 @@ def main():
     run(["--resume", dist, "--set", "run.t_end=0.6"], ranks=3)
     if not failures:
         compare_series(serial, dist, "resumed 1 -> 1 -> 1 against 2 -> 1 -> 3")
+
+    # Adaptive BDF2 with the predictor.
+    adaptive = [EXAMPLE, "--set", "solver.backend=tao", "--set", "run.t_end=0.2", "--set", "run.dt_mode=adaptive",
+                "--set", "solver.time_scheme=bdf2", "--set", "solver.predictor=damped"]
+    a_serial, a_dist = os.path.join(WORK, "adaptive1"), os.path.join(WORK, "adaptive2")
+    run(adaptive + ["--out", a_serial])
+    run(adaptive + ["--out", a_dist], ranks=2)
+    if not failures:
+        compare_series(a_serial, a_dist, "adaptive BDF2, 1 rank against 2")
+        if len(rows(a_serial)) < 4:
+            failures.append("the adaptive run took fewer than 3 steps")
 
     # Refused by the distributed step: one line naming the key, exit 2.
     p = run([EXAMPLE, "--set", "run.t_end=0.1", "--out", os.path.join(WORK, "ceres")], ranks=2, expect=2)
