@@ -1,6 +1,9 @@
 #include "otfp/fractional.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <exception>
+#include <stdexcept>
 
 namespace otfp {
 
@@ -58,6 +61,103 @@ SourceResult apply_source(ParticleSet& particles, const SourceField& s, double t
     }
   }
   particles.remove_indices(std::move(doomed));
+  return result;
+}
+
+namespace {
+// One stream per particle and step: the id spread over 64 bits (a SplitMix64
+// finaliser) and mixed with the step's key; Rng seeds itself through
+// SplitMix64 again, so neighbouring ids give unrelated streams.
+std::uint64_t stream_seed(std::uint64_t key, ParticleId id) {
+  std::uint64_t z = static_cast<std::uint64_t>(id) + 0x9E3779B97F4A7C15ull;
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return key ^ (z ^ (z >> 31));
+}
+}  // namespace
+
+SourceResult apply_source_by_id(ParticleSet& particles, const SourceField& s, double t, double dt,
+                                const SourceDraws& draws, std::int64_t max_particles) {
+  const int dim = particles.dim();
+  const std::size_t n0 = particles.size();
+  const bool shared = draws.gather && draws.sum;
+  const std::int64_t global = draws.global_size >= 0 ? draws.global_size : static_cast<std::int64_t>(n0);
+  // 1. Every particle's fate from its own stream; nothing changes yet.
+  std::vector<std::size_t> doomed, parent_of;
+  std::vector<Vec3> places;
+  std::vector<std::int64_t> pairs;  // (parent id, copies) of this process's parents with copies
+  double sums[4] = {0.0, 0.0, 0.0, 0.0};  // removed, mass removed, mass inserted, a refusal
+  std::exception_ptr refused;
+  try {
+    for (std::size_t p = 0; p < n0; ++p) {
+      const Vec3 x = particles.positions()[p];
+      const double integral = dt / 6.0 * (s(x, t) + 4.0 * s(x, t + 0.5 * dt) + s(x, t + dt));
+      require(std::isfinite(integral), "source s(x, t)", integral, "must be finite");
+      const double g = std::exp(integral);
+      const double m = particles.masses()[p];
+      Rng rng(stream_seed(draws.key, particles.ids()[p]));
+      if (g < 1.0) {
+        if (rng.uniform() >= g) {
+          doomed.push_back(p);
+          sums[0] += 1.0;
+          sums[1] += m;
+        }
+        continue;
+      }
+      const double extra = g - 1.0;
+      require_particle_room(std::ceil(extra), static_cast<std::size_t>(global), max_particles,
+                            "the source at a particle");
+      long copies = static_cast<long>(std::floor(extra));
+      if (rng.uniform() < extra - std::floor(extra)) ++copies;
+      const double spread = particles.widths()[p] / std::sqrt(2.0);
+      for (long c = 0; c < copies; ++c) {
+        Vec3 y = x;
+        for (int k = 0; k < dim; ++k) y[k] += spread * rng.normal();
+        places.push_back(y);
+        parent_of.push_back(p);
+        sums[2] += m;
+      }
+      if (copies > 0) pairs.insert(pairs.end(), {particles.ids()[p], copies});
+    }
+  } catch (...) {
+    refused = std::current_exception();
+    sums[3] = 1.0;
+  }
+  // 2. A refusal anywhere is every process's.
+  if (shared) draws.sum(sums, 4);
+  if (refused) std::rethrow_exception(refused);
+  if (sums[3] > 0.0)
+    throw std::runtime_error("the source: refused on another process (its error names the cause)");
+  // 3. The copies numbered in the order of their parents' ids, over all processes.
+  std::vector<std::int64_t> all = shared ? draws.gather(pairs) : pairs;
+  std::vector<std::pair<std::int64_t, std::int64_t>> parents;
+  for (std::size_t i = 0; i + 1 < all.size(); i += 2) parents.emplace_back(all[i], all[i + 1]);
+  std::sort(parents.begin(), parents.end());
+  std::int64_t total = 0;
+  for (auto& [id, count] : parents) {
+    const std::int64_t c = count;
+    count = total;  // now the first copy's offset
+    total += c;
+  }
+  require_particle_room(static_cast<double>(total), static_cast<std::size_t>(global - static_cast<std::int64_t>(sums[0])),
+                        max_particles, "the source");
+  // 4. Apply.
+  for (std::size_t k = 0; k < places.size();) {
+    const std::size_t p = parent_of[k];
+    const ParticleId id = particles.ids()[p];
+    const auto it = std::lower_bound(parents.begin(), parents.end(), std::make_pair(id, std::int64_t{0}),
+                                     [](const auto& a, const auto& b) { return a.first < b.first; });
+    std::int64_t next = draws.first_id + it->second;
+    for (; k < places.size() && parent_of[k] == p; ++k)
+      particles.add_with_id(next++, places[k], particles.widths()[p], particles.masses()[p], t + dt);
+  }
+  particles.set_next_id(std::max<ParticleId>(particles.next_id(), draws.first_id + total));
+  particles.remove_indices(std::move(doomed));
+  SourceResult result;
+  result.inserted = static_cast<long>(total);
+  result.removed = static_cast<long>(sums[0]);
+  result.mass_removed = sums[1];
+  result.mass_inserted = sums[2];
   return result;
 }
 

@@ -144,8 +144,6 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
   if (distribution_) {
     require(o.stepper == StepperKind::Implicit, "stepper", to_string(o.stepper),
             "a distributed run steps implicitly: must be implicit");
-    require(o.source_rate == 0.0, "source_rate", o.source_rate,
-            "a distributed run has no volumetric source yet (its draws are per particle): must be 0");
   }
 
   // Conditions, in the order of `boundary`.
@@ -462,8 +460,25 @@ SimulationStep Simulation::take_step(double t0, double t1, double max_error) {
   }
   // Line 3: source.
   if (s_rate != 0.0) {
-    const SourceResult sr =
-        apply_source(particles_, [s_rate](const Vec3&, double) { return s_rate; }, t0, h, rng_, max_particles());
+    const SourceField field = [s_rate](const Vec3&, double) { return s_rate; };
+    SourceResult sr;
+    if (options_.source_draws_by_id || distribution_) {
+      // Each particle's draws from its own stream (decomposition-independent):
+      // over several processes the counts come back summed over all of them.
+      SourceDraws draws;
+      draws.key = rng_.next_u64();
+      draws.first_id = particles_.next_id();
+      if (distribution_) {
+        for (std::int64_t id : distribution_->all_gather({particles_.next_id()}))
+          draws.first_id = std::max<ParticleId>(draws.first_id, id);
+        draws.global_size = global_size();
+        draws.gather = [this](const std::vector<std::int64_t>& v) { return distribution_->all_gather(v); };
+        draws.sum = [this](double* v, int n) { distribution_->sum(v, n); };
+      }
+      sr = apply_source_by_id(particles_, field, t0, h, draws, max_particles());
+    } else {
+      sr = apply_source(particles_, field, t0, h, rng_, max_particles());
+    }
     for (Vec3& x : particles_.positions()) x = domain_->wrap(x);
     ledger_.source_inserted += sr.inserted;
     ledger_.source_removed += sr.removed;

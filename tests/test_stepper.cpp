@@ -564,6 +564,47 @@ TEST(Fractional, SourceChangesExpectedMassByExponential) {
   }
 }
 
+// The draws by id: the same expected mass change, and a result that does not
+// depend on the particles' storage order (a reversed copy of the set ends
+// with the same particles, ids and positions, to the bit).
+TEST(Fractional, SourceDrawnByIdIsIndependentOfTheOrder) {
+  for (double rate : {0.8, -0.8, 12.0}) {
+    SCOPED_TRACE(rate);
+    const std::size_t n0 = 20000;
+    ParticleSet ps = random_cloud(2, n0, 0.0, 1.0, 0.05, 0.0, 1.0, 6);
+    for (auto& m : ps.masses()) m = 1.0;
+    std::vector<std::size_t> reversed(n0);
+    for (std::size_t i = 0; i < n0; ++i) reversed[i] = n0 - 1 - i;
+    ParticleSet other = ps;
+    other.reorder(reversed);
+    Rng rng(42);
+    long inserted = 0, removed = 0;
+    double t = 0.0;
+    const int steps = rate > 1.0 ? 1 : 5;
+    for (int k = 0; k < steps; ++k, t += 0.1) {
+      SourceDraws draws;
+      draws.key = rng.next_u64();
+      draws.first_id = ps.next_id();
+      const auto field = [&](const Vec3&, double) { return rate; };
+      const SourceResult r = apply_source_by_id(ps, field, t, 0.1, draws);
+      const SourceResult q = apply_source_by_id(other, field, t, 0.1, draws);
+      EXPECT_EQ(r.inserted, q.inserted);
+      EXPECT_EQ(r.removed, q.removed);
+      inserted += r.inserted;
+      removed += r.removed;
+    }
+    EXPECT_EQ(static_cast<long>(ps.size()), static_cast<long>(n0) + inserted - removed);
+    const double expected = n0 * std::exp(rate * 0.1 * steps);
+    EXPECT_NEAR(static_cast<double>(ps.size()), expected, 3.0 * std::sqrt(expected));
+    ASSERT_EQ(ps.size(), other.size());
+    for (std::size_t p = 0; p < ps.size(); ++p) {
+      const std::ptrdiff_t q = other.index_of(ps.ids()[p]);
+      ASSERT_GE(q, 0) << "id " << ps.ids()[p];
+      EXPECT_EQ(ps.positions()[p], other.positions()[static_cast<std::size_t>(q)]);
+    }
+  }
+}
+
 TEST(Steppers, RefuseParticlesOfAnotherDimension) {
   ParticleSet ps = random_cloud(2, 10, 0.0, 1.0, 0.1, 0.0, 0.1, 3);
   const ParticleSet before = ps;

@@ -1,6 +1,8 @@
 #pragma once
 // Advection and source fractional steps (Algorithm 1, lines 2-3).
+#include <cstdint>
 #include <functional>
+#include <vector>
 
 #include "otfp/particles.hpp"
 
@@ -28,5 +30,26 @@ struct SourceResult {
 // past max_particles (<= 0: kMaxParticleCount).
 SourceResult apply_source(ParticleSet& particles, const SourceField& s, double t, double dt, Rng& rng,
                           std::int64_t max_particles = 0);
+
+// The same step with each particle's random numbers drawn from a stream of
+// its own, keyed by `key` (one draw of the run's generator per step) and the
+// particle's id, and the copies numbered from first_id in the order of their
+// parents' ids: the result depends neither on the particles' storage order
+// nor, over several processes, on which process holds which particle.
+// Collective over the processes when `gather` and `sum` are set (each
+// process passes its share; null: one process): gather returns every
+// process's values concatenated, sum adds in place. The result's counts and
+// masses are then the totals over all processes, every process's alike, and
+// so is a refusal (ResourceLimitExceeded against max_particles, counted over
+// all processes; InvalidArgument for a non-finite source).
+struct SourceDraws {
+  std::uint64_t key = 0;
+  ParticleId first_id = 0;            // the first free id (over all processes)
+  std::int64_t global_size = -1;      // the particles of all processes (-1: this set's size)
+  std::function<std::vector<std::int64_t>(const std::vector<std::int64_t>&)> gather;
+  std::function<void(double*, int)> sum;
+};
+SourceResult apply_source_by_id(ParticleSet& particles, const SourceField& s, double t, double dt,
+                                const SourceDraws& draws, std::int64_t max_particles = 0);
 
 }  // namespace otfp

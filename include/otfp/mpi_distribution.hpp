@@ -70,6 +70,7 @@ class MpiDistribution final : public RunDistribution {
   double sum(double v) override;
   void sum(double* v, int n) override;
   std::int64_t sum(std::int64_t v) override;
+  std::vector<std::int64_t> all_gather(const std::vector<std::int64_t>& mine) override;
 
   const MpiDistributionStats& stats() const { return stats_; }
   const ExchangeStats& exchange() const;  // the diffusive steps' halo exchanges

@@ -76,6 +76,8 @@ class RunDistribution {
   virtual double sum(double v) = 0;
   virtual void sum(double* v, int n) = 0;  // each of v[0 ... n) in place
   virtual std::int64_t sum(std::int64_t v) = 0;
+  // Every process's values, concatenated in process order (collective).
+  virtual std::vector<std::int64_t> all_gather(const std::vector<std::int64_t>& mine) = 0;
 };
 
 }  // namespace otfp

@@ -120,6 +120,8 @@ void bind_options(py::module_& m) {
       .field("explicit_options", &SimulationOptions::explicit_options, "ExplicitOptions")
       .field("velocity", &SimulationOptions::velocity, "uniform advection velocity")
       .field("source_rate", &SimulationOptions::source_rate, "volumetric source rate")
+      .field("source_draws_by_id", &SimulationOptions::source_draws_by_id,
+             "the source's random numbers per particle id (default); False: one stream in storage order (serial only)")
       .field("time_control", &SimulationOptions::time_control, "TimeStepControlOptions")
       .field("max_error_rejections", &SimulationOptions::max_error_rejections, "adaptive tries per step")
       .field("seed", &SimulationOptions::seed, "random numbers")

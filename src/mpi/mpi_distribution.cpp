@@ -189,6 +189,18 @@ std::int64_t MpiDistribution::sum(std::int64_t v) {
   return out;
 }
 
+std::vector<std::int64_t> MpiDistribution::all_gather(const std::vector<std::int64_t>& mine) {
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  const MPI_Comm comm = detail::world_comm();
+  const int n = static_cast<int>(mine.size());
+  std::vector<int> counts(static_cast<std::size_t>(size())), offsets(counts.size(), 0);
+  MPI_Allgather(&n, 1, MPI_INT, counts.data(), 1, MPI_INT, comm);
+  for (std::size_t r = 1; r < counts.size(); ++r) offsets[r] = offsets[r - 1] + counts[r - 1];
+  std::vector<std::int64_t> all(static_cast<std::size_t>(offsets.back() + counts.back()));
+  MPI_Allgatherv(mine.data(), n, MPI_INT64_T, all.data(), counts.data(), offsets.data(), MPI_INT64_T, comm);
+  return all;
+}
+
 PatchLedger MpiDistribution::project(BoundaryProjection& projection, ParticleSet& owned, double t, double dt,
                                      Rng& rng, std::int64_t max_particles) {
   const auto t0 = Clock::now();

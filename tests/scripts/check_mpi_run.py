@@ -19,7 +19,9 @@ Usage: check_mpi_run.py OTFP MPIEXEC WORKDIR
    history travels with the particles; dt follows the global error
    estimate) on 1 and 2 ranks: the same steps, series.csv within the same
    tolerance (dt included).
-4. A configuration the distributed step refuses (the Ceres backend) exits 2
+4. A volumetric sink (physics.source_rate < 0; its draws are per particle
+   id, src/fractional.cpp): the same removals on 1 and 2 ranks.
+5. A configuration the distributed step refuses (the Ceres backend) exits 2
    with one line naming the key.
 """
 import csv
@@ -136,6 +138,14 @@ def main():
         compare_series(a_serial, a_dist, "adaptive BDF2, 1 rank against 2")
         if len(rows(a_serial)) < 4:
             failures.append("the adaptive run took fewer than 3 steps")
+
+    # A volumetric sink.
+    sink = [EXAMPLE, "--set", "solver.backend=tao", "--set", "run.t_end=0.1", "--set", "physics.source_rate=-2"]
+    s_serial, s_dist = os.path.join(WORK, "sink1"), os.path.join(WORK, "sink2")
+    run(sink + ["--out", s_serial])
+    run(sink + ["--out", s_dist], ranks=2)
+    if not failures:
+        compare_series(s_serial, s_dist, "sink, 1 rank against 2")
 
     # Refused by the distributed step: one line naming the key, exit 2.
     p = run([EXAMPLE, "--set", "run.t_end=0.1", "--out", os.path.join(WORK, "ceres")], ranks=2, expect=2)
