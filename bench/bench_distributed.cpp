@@ -8,7 +8,9 @@
 // along x) or its leaf of the recursive bisection, and times: 20 evaluations of F and its gradient at fixed
 // positions (the ghosts built once), then one implicit Euler step with TAO at
 // dt_factor x dt_explicit. Rank 0 prints the slowest rank's times and every
-// rank's ghosts and bytes.
+// rank's ghosts, bytes sent and memory: the peak resident size during the
+// evaluations and the step above the resident size once its particles are
+// drawn (the whole cloud freed), per particle it owns.
 #include <mpi.h>
 
 #include <chrono>
@@ -19,6 +21,7 @@
 #include <vector>
 
 #include "otfp/decomposition.hpp"
+#include "process_memory.hpp"
 #include "otfp/distributed_functional.hpp"
 #include "otfp/distributed_stepper.hpp"
 #include "otfp/geometry.hpp"
@@ -62,23 +65,30 @@ int main(int argc, char** argv) {
   ParticleSet mine(dim);
   for (std::size_t p = 0; p < n; ++p)
     if (owner[p] == rank) mine.add(x_all[p], s, 1.0 / static_cast<double>(n));
+  std::vector<Vec3>().swap(x_all);
+  std::vector<int>().swap(owner);
+  const double resident_before = bench::status_bytes("VmRSS");
 
   FunctionalOptions fo;
   fo.dt = dt_factor * pp.dt_explicit;
   fo.rho_ref = 1.0 / volume;
-  DistributedFunctional f(dim, fo, Barrier(ball, pp.barrier_C));
-  f.set_reference(mine.positions(), mine.widths(), mine.masses());
-  Gradient g;
-  f.evaluate(mine.positions(), mine.widths(), &g);  // ghosts and list
-  const ExchangeStats first = f.exchange();
-  MPI_Barrier(MPI_COMM_WORLD);
-  const int evaluations = 20;
-  const double t0 = now();
-  for (int k = 0; k < evaluations; ++k) f.evaluate(mine.positions(), mine.widths(), &g);
-  const double per_eval = slowest((now() - t0) / evaluations);
-  const ExchangeStats& st = f.exchange();
-  const double exchange = slowest((st.seconds - first.seconds) / evaluations);
-  const double bytes = (st.bytes_sent - first.bytes_sent) / evaluations;
+  double per_eval = 0.0, exchange = 0.0, bytes = 0.0;
+  ExchangeStats first;
+  {  // the functional alone (freed before the step, whose memory is measured)
+    DistributedFunctional f(dim, fo, Barrier(ball, pp.barrier_C));
+    f.set_reference(mine.positions(), mine.widths(), mine.masses());
+    Gradient g;
+    f.evaluate(mine.positions(), mine.widths(), &g);  // ghosts and list
+    first = f.exchange();
+    MPI_Barrier(MPI_COMM_WORLD);
+    const int evaluations = 20;
+    const double t0 = now();
+    for (int k = 0; k < evaluations; ++k) f.evaluate(mine.positions(), mine.widths(), &g);
+    per_eval = slowest((now() - t0) / evaluations);
+    const ExchangeStats& st = f.exchange();
+    exchange = slowest((st.seconds - first.seconds) / evaluations);
+    bytes = (st.bytes_sent - first.bytes_sent) / evaluations;
+  }
 
   ImplicitOptions io;
   io.minimizer.backend = Backend::Tao;
@@ -92,9 +102,15 @@ int main(int argc, char** argv) {
   for (int r = 0; r < size; ++r) {
     MPI_Barrier(MPI_COMM_WORLD);
     if (r == rank)
-      std::printf("rank %d: %zu owned, %zu ghosts (%.1f%%), %.3g MB sent per evaluation\n", rank, mine.size(),
-                  first.ghosts, 100.0 * static_cast<double>(first.ghosts) / static_cast<double>(mine.size()),
-                  bytes / 1e6);
+      std::printf("rank %d: %zu owned, %zu ghosts (%.1f%%), %.3g MB sent per evaluation; peak memory %.0f B per "
+                  "owned particle above the particles' (resident after the step %.0f B; the step's neighbour list %.0f B)\n",
+                  rank, mine.size(), first.ghosts,
+                  100.0 * static_cast<double>(first.ghosts) / static_cast<double>(mine.size()), bytes / 1e6,
+                  (bench::status_bytes("VmHWM") - resident_before) / static_cast<double>(mine.size()),
+                  (bench::status_bytes("VmRSS") - resident_before) / static_cast<double>(mine.size()),
+                  static_cast<double>(stepper.functional().list().indices().capacity() * sizeof(std::uint32_t) +
+                                      stepper.functional().list().offsets().capacity() * sizeof(std::uint32_t)) /
+                      static_cast<double>(mine.size()));
     std::fflush(stdout);
   }
   MPI_Barrier(MPI_COMM_WORLD);

@@ -23,6 +23,7 @@
 #include <string>
 #include <vector>
 
+#include "process_memory.hpp"
 #include "otfp/geometry.hpp"
 #include "otfp/neighbor_list.hpp"
 #include "otfp/parameters.hpp"
@@ -32,16 +33,7 @@ using namespace otfp;
 
 namespace {
 
-// A field of /proc/self/status in bytes (VmRSS, VmHWM); 0 where unavailable.
-double status_bytes(const char* key) {
-  std::ifstream in("/proc/self/status");
-  std::string line;
-  const std::size_t len = std::strlen(key);
-  while (std::getline(in, line))
-    if (line.compare(0, len, key) == 0 && line.size() > len && line[len] == ':')
-      return 1024.0 * std::atof(line.c_str() + len + 1);
-  return 0.0;
-}
+using bench::status_bytes;
 
 int usage(const char* why) {
   std::fprintf(stderr, "otfp_bench_scale: %s\nusage: otfp_bench_scale --n N [--dt-factor F] [--threads T] [--steps K] "
