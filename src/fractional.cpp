@@ -4,6 +4,7 @@
 #include <cmath>
 #include <exception>
 #include <stdexcept>
+#include <string>
 
 namespace otfp {
 
@@ -86,8 +87,11 @@ SourceResult apply_source_by_id(ParticleSet& particles, const SourceField& s, do
   std::vector<std::size_t> doomed, parent_of;
   std::vector<Vec3> places;
   std::vector<std::int64_t> pairs;  // (parent id, copies) of this process's parents with copies
-  double sums[4] = {0.0, 0.0, 0.0, 0.0};  // removed, mass removed, mass inserted, a refusal
+  // removed, mass removed, mass inserted; refusals: bad data, a resource limit, other
+  double sums[6] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
   std::exception_ptr refused;
+  require(draws.first_id >= particles.next_id(), "source first_id", static_cast<double>(draws.first_id),
+          "must be >= the set's next id " + std::to_string(particles.next_id()));
   try {
     for (std::size_t p = 0; p < n0; ++p) {
       const Vec3 x = particles.positions()[p];
@@ -105,7 +109,9 @@ SourceResult apply_source_by_id(ParticleSet& particles, const SourceField& s, do
         continue;
       }
       const double extra = g - 1.0;
-      require_particle_room(std::ceil(extra), static_cast<std::size_t>(global), max_particles,
+      // Against the copies this process has drawn so far too: a huge growth
+      // factor is refused before its copies are drawn.
+      require_particle_room(std::ceil(extra), static_cast<std::size_t>(global) + places.size(), max_particles,
                             "the source at a particle");
       long copies = static_cast<long>(std::floor(extra));
       if (rng.uniform() < extra - std::floor(extra)) ++copies;
@@ -119,15 +125,23 @@ SourceResult apply_source_by_id(ParticleSet& particles, const SourceField& s, do
       }
       if (copies > 0) pairs.insert(pairs.end(), {particles.ids()[p], copies});
     }
-  } catch (...) {
+  } catch (const InvalidArgument&) {
     refused = std::current_exception();
     sums[3] = 1.0;
+  } catch (const ResourceLimitExceeded&) {
+    refused = std::current_exception();
+    sums[4] = 1.0;
+  } catch (...) {
+    refused = std::current_exception();
+    sums[5] = 1.0;
   }
-  // 2. A refusal anywhere is every process's.
-  if (shared) draws.sum(sums, 4);
+  // 2. A refusal anywhere is every process's, of the same kind.
+  if (shared) draws.sum(sums, 6);
   if (refused) std::rethrow_exception(refused);
-  if (sums[3] > 0.0)
-    throw std::runtime_error("the source: refused on another process (its error names the cause)");
+  const std::string elsewhere = "the source: refused on another process (its error names the cause)";
+  if (sums[3] > 0.0) throw InvalidArgument(elsewhere);
+  if (sums[4] > 0.0) throw ResourceLimitExceeded(elsewhere);
+  if (sums[5] > 0.0) throw std::runtime_error(elsewhere);
   // 3. The copies numbered in the order of their parents' ids, over all processes.
   std::vector<std::int64_t> all = shared ? draws.gather(pairs) : pairs;
   std::vector<std::pair<std::int64_t, std::int64_t>> parents;

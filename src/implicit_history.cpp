@@ -53,6 +53,8 @@ void ImplicitStepper::estimate_local_error(const std::vector<ParticleId>& ids, c
     std::vector<std::size_t> probes;
     for (std::size_t p = 0; p < n; ++p)
       if (detail::is_density_probe(ids[p], dim_)) probes.push_back(p);
+    if (probes.empty())  // a small set with no id on the stride: every particle
+      for (std::size_t p = 0; p < n; ++p) probes.push_back(p);
     if (std::find(e.has.begin(), e.has.end(), char{1}) != e.has.end())
       density_error = detail::density_error_from(
           detail::density_error_sums(dim_, x_new, b.w_new, b.x_pred, b.w_pred, m, probes, functional_.periodicity(),

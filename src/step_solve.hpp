@@ -76,7 +76,7 @@ MilneErrors milne_errors(const ImplicitOptions& options, const std::vector<Vec3>
 // multiple of the stride (2^d / 2), about one per 1.6 spacings in 3-D, where
 // the smoothed density varies over 2.2 widths; chosen by id so that the
 // estimate does not depend on the particles' order or on which process
-// holds them.
+// holds them (a set with no such id anywhere probes every particle).
 bool is_density_probe(ParticleId id, int dim);
 
 // Into the summary: the error estimates from the global mass-weighted sums

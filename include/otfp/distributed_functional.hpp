@@ -40,7 +40,7 @@ class DistributedFunctional {
 
   // This rank's owned particles: reference configuration (x^k, s^k),
   // masses and transport weights (Functional::set_reference; empty: 1).
-  // Collective; the next evaluation rebuilds the ghosts.
+  // Not collective; the next evaluation (collective) rebuilds the ghosts.
   void set_reference(const std::vector<Vec3>& x_ref, const std::vector<double>& s_ref, const std::vector<double>& m,
                      std::vector<double> transport_weights = {});
 

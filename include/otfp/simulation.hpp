@@ -181,13 +181,12 @@ class Simulation {
   // in otfp::mpi): every process builds the Simulation with the same
   // arguments and its own distribution object, and holds a share of the
   // particles (start() takes any split; particles() is this process's share;
-  // measure() and blob_mass() measure the share). The steps, projections and
-  // ledger are those of the serial run on the union (the projection draws
-  // its random deletions by id). Refused (InvalidArgument naming the field):
-  // the explicit stepper, a volumetric source, and what the distributed step
-  // refuses (a backend other than TAO, BDF2, a predictor); advance_adaptive()
-  // is not offered yet. Collective: the constructor, start(), every step and
-  // the checkpoints.
+  // measure() and blob_mass() are global). The steps (fixed or adaptive,
+  // Euler or BDF2, with the predictor), projections, source and ledger are
+  // those of the serial run on the union (the projection draws its random
+  // deletions by id, the source per particle id). Refused (InvalidArgument
+  // naming the field): the explicit stepper and a backend other than TAO.
+  // Collective: the constructor, start(), every step and the checkpoints.
   Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> boundary, SimulationOptions options,
              std::shared_ptr<RunDistribution> distribution);
   ~Simulation();

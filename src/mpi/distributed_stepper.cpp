@@ -199,6 +199,11 @@ double DistributedImplicitStepper::Impl::density_error(const std::vector<Particl
   std::vector<std::size_t> probes;
   for (std::size_t p = 0; p < n; ++p)
     if (detail::is_density_probe(ids[p], dim)) probes.push_back(p);
+  // A small set with no id on the stride anywhere: every particle (as serially).
+  int probes_anywhere = probes.empty() ? 0 : 1;
+  MPI_Allreduce(MPI_IN_PLACE, &probes_anywhere, 1, MPI_INT, MPI_MAX, comm);
+  if (probes_anywhere == 0)
+    for (std::size_t p = 0; p < n; ++p) probes.push_back(p);
   detail::DensityErrorSums sums =
       detail::density_error_sums(dim, xs, b.w_new, b.x_pred, b.w_pred, ms, probes, periodicity, tol, e.factor);
   double v[3] = {sums.error2, sums.density, sums.mass};

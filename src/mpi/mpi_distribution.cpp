@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <limits>
 #include <mutex>
 #include <numeric>
@@ -270,9 +271,12 @@ void MpiDistribution::redistribute(ParticleSet& owned) {
     layout_ = std::make_unique<BisectionLayout>(balanced_bisection(owned.positions(), dim_));
     ++stats_.rebalances;
   }
-  // The history's entries go with their particles (to the owner by the
-  // layout migrate() uses).
+  // The history's entries go with their particles, to the owner by the
+  // layout migrate() uses: taken out before it, put back if it refuses (it
+  // refuses on every rank alike, before moving any particle), sent once it
+  // has moved the particles.
   std::vector<detail::Rows> to(static_cast<std::size_t>(size()));
+  std::vector<HistoryEntry> taken;
   if (stepper_) {
     const int me = rank();
     std::vector<std::vector<ParticleId>> leaving(static_cast<std::size_t>(size()));
@@ -281,13 +285,34 @@ void MpiDistribution::redistribute(ParticleSet& owned) {
       if (r != me) leaving[static_cast<std::size_t>(r)].push_back(owned.ids()[p]);
     }
     for (std::size_t r = 0; r < leaving.size(); ++r)
-      for (const HistoryEntry& e : stepper_->history().extract(leaving[r])) append_entry(to[r], e);
+      for (const HistoryEntry& e : stepper_->history().extract(leaving[r])) {
+        append_entry(to[r], e);
+        taken.push_back(e);
+      }
   }
+  std::size_t moved = 0;
+  try {
+    moved = migrate(owned, *layout_);
+  } catch (...) {
+    if (stepper_) stepper_->history().absorb(taken);
+    throw;
+  }
+  stats_.migrated_out += static_cast<std::int64_t>(moved);
   const detail::Rows arrived = detail::exchange_rows(to, kHistoryDoubles, comm);
   std::vector<HistoryEntry> entries;
   for (std::size_t i = 0; i < arrived.ids.size(); ++i) entries.push_back(entry_of(arrived, i));
-  if (stepper_) stepper_->history().absorb(entries);
-  stats_.migrated_out += static_cast<std::int64_t>(migrate(owned, *layout_));
+  // An entry refused here (an id held twice: ids not unique over the ranks)
+  // is every rank's refusal, so that none goes on alone.
+  std::exception_ptr bad;
+  try {
+    if (stepper_) stepper_->history().absorb(entries);
+  } catch (...) {
+    bad = std::current_exception();
+  }
+  int any_bad = bad ? 1 : 0;
+  MPI_Allreduce(MPI_IN_PLACE, &any_bad, 1, MPI_INT, MPI_MAX, comm);
+  if (bad) std::rethrow_exception(bad);
+  require(any_bad == 0, "history", 0.0, "refused on another rank (its error names the entry)");
   stats_.redistribution_seconds += seconds_since(t0);
 }
 
