@@ -28,37 +28,54 @@ void advect(ParticleSet& particles, const VelocityField& u, double t, double dt,
   }
 }
 
+namespace {
+
+// Line 3 at particle p: its growth factor g = exp(int_t^{t+dt} s) (Simpson's
+// rule in time) and what `rng` makes of it: removed (g < 1, with
+// probability 1 - g), or floor(g - 1) copies plus one with probability
+// frac(g - 1), placed at draws from N(x_p, s_p^2/2) per axis and appended to
+// `places` (refused before the copies are drawn when `held` particles plus
+// them would pass max_particles). Returns whether p is removed.
+bool particle_fate(const ParticleSet& particles, std::size_t p, const SourceField& s, double t, double dt, Rng& rng,
+                   std::size_t held, std::int64_t max_particles, std::vector<Vec3>& places) {
+  const Vec3 x = particles.positions()[p];
+  const double integral = dt / 6.0 * (s(x, t) + 4.0 * s(x, t + 0.5 * dt) + s(x, t + dt));
+  require(std::isfinite(integral), "source s(x, t)", integral, "must be finite");
+  const double g = std::exp(integral);
+  if (g < 1.0) return rng.uniform() >= g;
+  const double extra = g - 1.0;
+  require_particle_room(std::ceil(extra), held, max_particles, "the source at a particle");
+  long copies = static_cast<long>(std::floor(extra));
+  if (rng.uniform() < extra - std::floor(extra)) ++copies;
+  const double spread = particles.widths()[p] / std::sqrt(2.0);
+  for (long c = 0; c < copies; ++c) {
+    Vec3 y = x;
+    for (int k = 0; k < particles.dim(); ++k) y[k] += spread * rng.normal();
+    places.push_back(y);
+  }
+  return false;
+}
+
+}  // namespace
+
 SourceResult apply_source(ParticleSet& particles, const SourceField& s, double t, double dt, Rng& rng,
                           std::int64_t max_particles) {
   SourceResult result;
-  const int dim = particles.dim();
   const std::size_t n0 = particles.size();
   std::vector<std::size_t> doomed;
+  std::vector<Vec3> places;
   for (std::size_t p = 0; p < n0; ++p) {
-    const Vec3 x = particles.positions()[p];
-    const double integral = dt / 6.0 * (s(x, t) + 4.0 * s(x, t + 0.5 * dt) + s(x, t + dt));
-    require(std::isfinite(integral), "source s(x, t)", integral, "must be finite");
-    const double g = std::exp(integral);
     const double m = particles.masses()[p];
-    if (g < 1.0) {
-      if (rng.uniform() >= g) {
-        doomed.push_back(p);
-        ++result.removed;
-        result.mass_removed += m;
-      }
-    } else {
-      const double extra = g - 1.0;
-      require_particle_room(std::ceil(extra), particles.size(), max_particles, "the source at a particle");
-      long copies = static_cast<long>(std::floor(extra));
-      if (rng.uniform() < extra - std::floor(extra)) ++copies;
-      const double spread = particles.widths()[p] / std::sqrt(2.0);
-      for (long c = 0; c < copies; ++c) {
-        Vec3 y = x;
-        for (int k = 0; k < dim; ++k) y[k] += spread * rng.normal();
-        particles.add(y, particles.widths()[p], m, t + dt);
-        ++result.inserted;
-        result.mass_inserted += m;
-      }
+    places.clear();
+    if (particle_fate(particles, p, s, t, dt, rng, particles.size(), max_particles, places)) {
+      doomed.push_back(p);
+      ++result.removed;
+      result.mass_removed += m;
+    }
+    for (const Vec3& y : places) {
+      particles.add(y, particles.widths()[p], m, t + dt);
+      ++result.inserted;
+      result.mass_inserted += m;
     }
   }
   particles.remove_indices(std::move(doomed));
@@ -79,7 +96,6 @@ std::uint64_t stream_seed(std::uint64_t key, ParticleId id) {
 
 SourceResult apply_source_by_id(ParticleSet& particles, const SourceField& s, double t, double dt,
                                 const SourceDraws& draws, std::int64_t max_particles) {
-  const int dim = particles.dim();
   const std::size_t n0 = particles.size();
   const bool shared = draws.gather && draws.sum;
   const std::int64_t global = draws.global_size >= 0 ? draws.global_size : static_cast<std::int64_t>(n0);
@@ -94,32 +110,18 @@ SourceResult apply_source_by_id(ParticleSet& particles, const SourceField& s, do
           "must be >= the set's next id " + std::to_string(particles.next_id()));
   try {
     for (std::size_t p = 0; p < n0; ++p) {
-      const Vec3 x = particles.positions()[p];
-      const double integral = dt / 6.0 * (s(x, t) + 4.0 * s(x, t + 0.5 * dt) + s(x, t + dt));
-      require(std::isfinite(integral), "source s(x, t)", integral, "must be finite");
-      const double g = std::exp(integral);
       const double m = particles.masses()[p];
       Rng rng(stream_seed(draws.key, particles.ids()[p]));
-      if (g < 1.0) {
-        if (rng.uniform() >= g) {
-          doomed.push_back(p);
-          sums[0] += 1.0;
-          sums[1] += m;
-        }
-        continue;
+      // Against the copies this process has drawn so far too.
+      const std::size_t before = places.size();
+      if (particle_fate(particles, p, s, t, dt, rng, static_cast<std::size_t>(global) + before, max_particles,
+                        places)) {
+        doomed.push_back(p);
+        sums[0] += 1.0;
+        sums[1] += m;
       }
-      const double extra = g - 1.0;
-      // Against the copies this process has drawn so far too: a huge growth
-      // factor is refused before its copies are drawn.
-      require_particle_room(std::ceil(extra), static_cast<std::size_t>(global) + places.size(), max_particles,
-                            "the source at a particle");
-      long copies = static_cast<long>(std::floor(extra));
-      if (rng.uniform() < extra - std::floor(extra)) ++copies;
-      const double spread = particles.widths()[p] / std::sqrt(2.0);
-      for (long c = 0; c < copies; ++c) {
-        Vec3 y = x;
-        for (int k = 0; k < dim; ++k) y[k] += spread * rng.normal();
-        places.push_back(y);
+      const auto copies = static_cast<std::int64_t>(places.size() - before);
+      for (std::int64_t c = 0; c < copies; ++c) {
         parent_of.push_back(p);
         sums[2] += m;
       }
