@@ -58,6 +58,25 @@ bool Domain::in_layer_cell(const Vec3& x, int patch, double b, LayerPart part) c
   return false;
 }
 
+Vec3 Domain::inertia_center() const {
+  const Aabb box = bounding_box();
+  Vec3 c = 0.5 * (box.lo + box.hi);
+  for (int k = dim(); k < 3; ++k) c[k] = 0.0;
+  return c;
+}
+
+double Domain::mean_square_distance(const Vec3& c) const {
+  Rng rng(0x6a696e66ULL);
+  constexpr int kSamples = 200000;
+  double s2 = 0.0;
+  for (int i = 0; i < kSamples; ++i) {
+    Vec3 x = sample_interior(rng);
+    for (int k = dim(); k < 3; ++k) x[k] = 0.0;
+    s2 += (x - c).squaredNorm();
+  }
+  return s2 / kSamples;
+}
+
 Vec3 Domain::sample_interior(Rng& rng) const {
   const Aabb box = bounding_box();
   const int d = dim();

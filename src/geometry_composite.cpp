@@ -112,6 +112,8 @@ class SubPatchDomain final : public Domain {
   Aabb bounding_box() const override { return base_->bounding_box(); }
   // Sub-patches do not change Omega.
   std::optional<DomainShape> shape() const override { return base_->shape(); }
+  Vec3 inertia_center() const override { return base_->inertia_center(); }
+  double mean_square_distance(const Vec3& c) const override { return base_->mean_square_distance(c); }
 
   // A sub-patch lies on its base patch's wall.
   std::shared_ptr<const MirrorWall> patch_wall(int patch) const override {

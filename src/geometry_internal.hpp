@@ -74,6 +74,17 @@ inline double box_measure(const Aabb& box, int dim) {
   return v;
 }
 
+// Mean of |x - c|^2 over the box at uniform density: per axis, the
+// variance len^2 / 12 plus the squared offset of the midpoint.
+inline double box_mean_square(const Aabb& box, int dim, const Vec3& c) {
+  double s = 0.0;
+  for (int k = 0; k < dim; ++k) {
+    const double len = box.hi[k] - box.lo[k], mid = 0.5 * (box.lo[k] + box.hi[k]);
+    s += len * len / 12.0 + (mid - c[k]) * (mid - c[k]);
+  }
+  return s;
+}
+
 inline Vec3 uniform_in(const Aabb& box, int dim, Rng& rng) {
   Vec3 x = Vec3::Zero();
   for (int k = 0; k < dim; ++k) x[k] = rng.uniform(box.lo[k], box.hi[k]);

@@ -83,6 +83,11 @@ class Ball final : public Domain {
   }
 
   Aabb bounding_box() const override { return inflate(Aabb{c_, c_}, dim_, r_); }
+  Vec3 inertia_center() const override { return c_; }
+  // d / (d + 2) R^2 about the centre (a ball's second moment), plus the offset.
+  double mean_square_distance(const Vec3& c) const override {
+    return dim_ / (dim_ + 2.0) * r_ * r_ + (c_ - c).squaredNorm();
+  }
 
   std::optional<DomainShape> shape() const override {
     DomainShape sh;
@@ -177,6 +182,7 @@ class Box final : public Domain {
   }
 
   double volume() const override { return box_measure(bounding_box(), dim_); }
+  double mean_square_distance(const Vec3& c) const override { return box_mean_square(bounding_box(), dim_, c); }
   int num_patches() const override { return 2 * dim_; }
 
   double patch_area(int patch) const override {
@@ -328,6 +334,11 @@ class Cylinder final : public Domain {
   }
 
   double volume() const override { return kPi * r_ * r_ * len_; }
+  Vec3 inertia_center() const override { return 0.5 * (a_ + b_); }
+  // R^2 / 2 across the axis and len^2 / 12 along it, plus the offset.
+  double mean_square_distance(const Vec3& c) const override {
+    return r_ * r_ / 2.0 + len_ * len_ / 12.0 + (0.5 * (a_ + b_) - c).squaredNorm();
+  }
   int num_patches() const override { return 3; }
 
   double patch_area(int patch) const override {
@@ -435,6 +446,7 @@ class FreeSpace final : public Domain {
   int dim() const override { return dim_; }
   BoundaryQuery query(const Vec3& x) const override { return no_boundary(x); }
   double volume() const override { return box_measure(box_, dim_); }
+  double mean_square_distance(const Vec3& c) const override { return box_mean_square(box_, dim_, c); }
   int num_patches() const override { return 0; }
   double patch_area(int patch) const override {
     throw InvalidArgument("patch = " + std::to_string(patch) + ": free space has no patches");
@@ -461,6 +473,7 @@ class PeriodicBox final : public Domain {
   BoundaryQuery query(const Vec3& x) const override { return no_boundary(x); }
 
   double volume() const override { return box_measure(bounding_box(), dim_); }
+  double mean_square_distance(const Vec3& c) const override { return box_mean_square(bounding_box(), dim_, c); }
   int num_patches() const override { return 0; }
   double patch_area(int patch) const override {
     check_patch(*this, patch);  // always throws: there are no patches

@@ -3,6 +3,9 @@
 // blob-density mass M_rho/M_inf against the same mass curve.
 #include <cmath>
 #include <memory>
+#include <optional>
+#include <string>
+#include <vector>
 
 #include "otfp/analytic.hpp"
 #include "otfp/reference.hpp"
@@ -95,6 +98,31 @@ class CrankReference : public Reference {
 };
 
 }  // namespace
+
+void complete_reference_geometry(const std::string& name, const Domain& domain,
+                                 const std::vector<int>& dirichlet_patches, ReferenceSetup& setup) {
+  const std::optional<DomainShape> shape = domain.shape();
+  if (name == "crank_sphere") {
+    if (!shape || shape->kind != DomainShape::Kind::Ball) return;
+    if (!(setup.radius > 0.0)) setup.radius = shape->radius;
+    // (3/5) M_inf R^2: the polar inertia of a uniform 3-D ball about its centre.
+    const double R = setup.radius;
+    if (!setup.J_inf && setup.dim == 3 && (setup.center - shape->center).norm() <= 1e-12 * R &&
+        std::abs(R - shape->radius) <= 1e-12 * R)
+      setup.J_inf = 0.6 * setup.M_inf * R * R;
+  } else if (name == "crank_slab") {
+    if (setup.length > 0.0 || !shape || shape->kind != DomainShape::Kind::Box) return;
+    if (dirichlet_patches.size() != 1) return;
+    const int face = dirichlet_patches.front();
+    if (face < 0 || face >= 2 * setup.dim) return;  // a sub-patch is not a whole face
+    setup.length = shape->hi[face / 2] - shape->lo[face / 2];
+    setup.lo = shape->lo;
+    setup.hi = shape->hi;
+    setup.slab_axis = face / 2;
+    setup.slab_held_at_hi = face % 2 == 1;
+    if (!setup.J_inf) setup.J_inf = setup.M_inf * domain.mean_square_distance(setup.center);
+  }
+}
 
 std::unique_ptr<Reference> make_crank_sphere_reference(const ReferenceSetup& setup) {
   return std::make_unique<CrankReference>(setup, true);

@@ -42,6 +42,17 @@ TreatmentOptions treatment_preset(TreatmentPreset preset, int dim) {
   return t;
 }
 
+void InitialFillRule::validate() const {
+  require(count >= 0, "fill.count", static_cast<double>(count), "must be >= 0 (0: from fill.mass, else n_inf)");
+  require(std::isfinite(mass) && mass >= 0.0, "fill.mass", mass, "must be finite and >= 0 (0: not given)");
+  require(given_count >= -1, "fill.given_count", static_cast<double>(given_count), "must be >= 0, or -1 for none");
+  require(std::isfinite(given_mass) && given_mass >= 0.0, "fill.given_mass", given_mass, "must be finite and >= 0");
+  if (lattice)
+    for (int k = 0; k < 3; ++k)
+      require(std::isfinite(lattice_lo[k]) && std::isfinite(lattice_hi[k]) && lattice_lo[k] <= lattice_hi[k],
+              "fill.lattice_hi", lattice_hi[k], "must be finite and >= fill.lattice_lo on every axis");
+}
+
 void RunSetupOptions::validate() const {
   require(n_inf >= 1, "n_inf", static_cast<double>(n_inf), "must be >= 1");
   require(std::isfinite(kappa) && kappa > 0.0, "kappa", kappa, "must be finite and > 0");
@@ -62,6 +73,7 @@ void RunSetupOptions::validate() const {
   require(std::isfinite(particle_mass) && particle_mass >= 0.0, "particle_mass", particle_mass,
           "must be finite and >= 0 (0: M_inf / n_inf)");
   treatment.validate();
+  fill.validate();
 }
 
 RunParameters run_parameters(const Domain& domain, const std::vector<ConstantBoundaryData>& boundary,
@@ -109,22 +121,70 @@ RunParameters run_parameters(const Domain& domain, const std::vector<ConstantBou
                                 : std::max(1, static_cast<int>(std::lround(2.0 * p.reservoir_width / p.dr)));
   }
 
-  // M_inf: given, or the area-weighted mean of the Dirichlet data times |Omega|.
+  // Net Neumann inflow over [0, t_end] (f is the outward flux: inflow is -f).
+  for (const ConstantBoundaryData& b : boundary)
+    if (b.kind == PatchKind::Neumann)
+      p.neumann_net_inflow += -b.value * domain.patch_area(b.patch) *
+                              std::max(0.0, std::min(o.t_end, b.t_end) - std::max(0.0, b.t_start));
+
+  // M_inf: the first rule that applies (MassRule).
+  const InitialFillRule& f = o.fill;
+  double ga = 0.0, area = 0.0;
+  for (const ConstantBoundaryData& b : boundary)
+    if (b.kind == PatchKind::Dirichlet) {
+      ga += b.value * domain.patch_area(b.patch);
+      area += domain.patch_area(b.patch);
+    }
+  auto set_mass = [&p](MassRule rule, double m) {
+    p.M_inf_rule = rule;
+    p.M_inf = m;
+  };
   if (o.M_inf > 0.0) {
-    p.M_inf = o.M_inf;
-  } else {
-    double ga = 0.0, area = 0.0;
-    for (const ConstantBoundaryData& b : boundary)
-      if (b.kind == PatchKind::Dirichlet) {
-        ga += b.value * domain.patch_area(b.patch);
-        area += domain.patch_area(b.patch);
-      }
-    p.M_inf = area > 0.0 ? ga / area * p.volume : 0.0;
+    set_mass(MassRule::Given, o.M_inf);
+  } else if (area > 0.0) {
+    set_mass(MassRule::Dirichlet, ga / area * p.volume);
+  } else if (f.given_count >= 0) {
+    set_mass(MassRule::GivenParticles, f.given_mass + p.neumann_net_inflow);
+  } else if (f.filled && f.mass > 0.0) {
+    set_mass(MassRule::FillMass, f.mass + p.neumann_net_inflow);
+  } else if (o.particle_mass > 0.0) {
+    const double n0 = f.filled ? static_cast<double>(f.count > 0 ? f.count : o.n_inf) : 0.0;
+    set_mass(MassRule::ParticleMass, n0 * o.particle_mass + p.neumann_net_inflow);
+    if (!(p.M_inf > 0.0)) set_mass(MassRule::NInfParticleMass, static_cast<double>(o.n_inf) * o.particle_mass);
+  } else if (!f.filled && p.neumann_net_inflow > 0.0) {
+    set_mass(MassRule::NeumannInflow, p.neumann_net_inflow);
   }
   if (o.particle_mass > 0.0)
     p.particle_mass = o.particle_mass;
   else if (p.M_inf > 0.0 && std::isfinite(p.M_inf))
     p.particle_mass = p.M_inf / static_cast<double>(n_inf);
+
+  // The fill's count: a lattice of spacing ~dr, the given particles, or the
+  // fill's own count, mass or n_inf.
+  if (f.lattice) {
+    double total = 1.0;  // in double first: an extreme box must not overflow the count
+    for (int k = 0; k < dim; ++k) total *= std::max(1.0, std::round((f.lattice_hi[k] - f.lattice_lo[k]) / p.dr));
+    require(total <= 1e8, "fill.lattice", total, "lattice points: at most 1e8");
+    p.fill_count = 1;
+    for (int k = 0; k < dim; ++k) {
+      p.lattice_counts[static_cast<std::size_t>(k)] =
+          std::max<std::int64_t>(1, std::llround((f.lattice_hi[k] - f.lattice_lo[k]) / p.dr));
+      p.fill_count *= p.lattice_counts[static_cast<std::size_t>(k)];
+    }
+  } else if (f.given_count >= 0) {
+    p.fill_count = f.given_count;
+  } else if (f.filled) {
+    if (f.count > 0) {
+      p.fill_count = f.count;
+    } else if (f.mass > 0.0) {
+      const double n = f.mass / p.particle_mass;
+      require(p.particle_mass > 0.0 && n <= 1e18, "fill.mass", f.mass,
+              "gives " + shown(n) + " particles of mass m_p = " + shown(p.particle_mass) + " (more than 1e18)");
+      p.fill_count = std::llround(n);
+    } else {
+      p.fill_count = o.n_inf;
+    }
+  }
   return p;
 }
 

@@ -661,3 +661,49 @@ TEST(SquarePipeObstacle, AgreesWithTheBoxMinusCylinder) {
   EXPECT_THROW(otfp::make_square_pipe_obstacle(3, Vec3::Zero(), Vec3::Ones(), 2, Vec3(0.5, 0.5, 0.5), 0.6),
                otfp::InvalidArgument);  // the obstacle reaches the walls
 }
+
+namespace {
+
+// Mean of |x - c|^2 over Omega by sampling it: the plain average over
+// sample_interior() with its own seed, against each domain's closed form.
+double sampled_mean_square(const Domain& d, const Vec3& c, int samples) {
+  Rng rng(20261202);
+  double s2 = 0.0;
+  for (int i = 0; i < samples; ++i) s2 += (d.sample_interior(rng) - c).squaredNorm();
+  return s2 / samples;
+}
+
+}  // namespace
+
+TEST(Domain, MeanSquareDistanceClosedFormsMatchSampling) {
+  const Vec3 c(0.3, -0.2, 0.1);
+  const std::vector<DomainPtr> domains = {
+      make_ball(3, Vec3(0.1, 0.2, 0.3), 1.5),     make_ball(2, Vec3(0.1, 0.2, 0.0), 0.7),
+      make_box(3, Vec3(-1, 0, 0), Vec3(2, 1, 3)), make_box(2, Vec3(-1, 0, 0), Vec3(2, 1, 0)),
+      make_cylinder(Vec3(0, 0, 0), Vec3(1, 2, 2), 0.5),
+      make_periodic_box(2, Vec3(0, 0, 0), Vec3(1, 3, 0)),
+      make_free_space(3, Vec3(-1, -1, -1), Vec3(1, 2, 1))};
+  constexpr int kSamples = 400000;
+  for (const DomainPtr& d : domains) {
+    const double exact = d->mean_square_distance(c);
+    // The sampled mean's standard error is below 1% of these values at this count.
+    EXPECT_NEAR(exact, sampled_mean_square(*d, c, kSamples), 0.01 * exact) << "dim " << d->dim();
+  }
+  // The default (sampling with a fixed seed) on a domain without a closed form.
+  const DomainPtr pipe = make_square_pipe_obstacle(2, Vec3(0, 0, 0), Vec3(4, 1, 0), 2, Vec3(1, 0.5, 0), 0.2);
+  EXPECT_NEAR(pipe->mean_square_distance(c), sampled_mean_square(*pipe, c, kSamples), 0.01 * pipe->mean_square_distance(c));
+  EXPECT_EQ(pipe->mean_square_distance(c), pipe->mean_square_distance(c));  // the same value every call
+}
+
+TEST(Domain, InertiaCenterIsTheCentreOfSymmetry) {
+  EXPECT_EQ(make_ball(2, Vec3(0.1, 0.2, 0.3), 1.5)->inertia_center(), Vec3(0.1, 0.2, 0.0));
+  EXPECT_EQ(make_box(3, Vec3(-1, 0, 0), Vec3(2, 1, 3))->inertia_center(), Vec3(0.5, 0.5, 1.5));
+  EXPECT_EQ(make_cylinder(Vec3(0, 0, 0), Vec3(1, 2, 2), 0.5)->inertia_center(), Vec3(0.5, 1.0, 1.0));
+  const DomainPtr box = make_box(3, Vec3(-1, 0, 0), Vec3(2, 1, 3));
+  const DomainPtr with_outlet = make_with_subpatches(box, {SubPatch{0, Vec3(-1, 0.5, 1.5), 0.2, "outlet"}});
+  EXPECT_EQ(with_outlet->inertia_center(), box->inertia_center());
+  EXPECT_EQ(with_outlet->mean_square_distance(Vec3::Zero()), box->mean_square_distance(Vec3::Zero()));
+  // Its box's centre, whatever the obstacle.
+  EXPECT_EQ(make_square_pipe_obstacle(2, Vec3(0, 0, 0), Vec3(4, 1, 0), 2, Vec3(1, 0.5, 0), 0.2)->inertia_center(),
+            Vec3(2.0, 0.5, 0.0));
+}

@@ -508,3 +508,44 @@ TEST(References, ResumedRunKeepsTheReference) {
     fs::remove_all(cut);
   }
 }
+
+// What the Crank references read from the domain: the ball's radius and
+// (3/5) M R^2 about its centre; a box's depth across its one held face and
+// M_inf times its mean squared distance (the box's own closed form).
+TEST(ReferenceObjects, CrankGeometryFromTheDomain) {
+  const otfp::DomainPtr ball = otfp::make_ball(3, otfp::Vec3(0.5, 0, 0), 2.0);
+  otfp::ReferenceSetup s;
+  s.center = otfp::Vec3(0.5, 0, 0);
+  s.M_inf = 3.0;
+  otfp::complete_reference_geometry("crank_sphere", *ball, {0}, s);
+  EXPECT_EQ(s.radius, 2.0);
+  ASSERT_TRUE(s.J_inf.has_value());
+  EXPECT_NEAR(*s.J_inf, 0.6 * 3.0 * 4.0, 1e-14);
+  // Off centre: no polar-inertia reference; a given radius is kept.
+  otfp::ReferenceSetup off;
+  off.center = otfp::Vec3::Zero();
+  off.radius = 1.5;
+  otfp::complete_reference_geometry("crank_sphere", *ball, {0}, off);
+  EXPECT_EQ(off.radius, 1.5);
+  EXPECT_FALSE(off.J_inf.has_value());
+
+  // A box held at y = 3 (patch 3): depth 3 along axis 1.
+  const otfp::DomainPtr box = otfp::make_box(2, otfp::Vec3(0, 0, 0), otfp::Vec3(2, 3, 0));
+  otfp::ReferenceSetup slab;
+  slab.dim = 2;
+  slab.center = otfp::Vec3(1, 1.5, 0);
+  slab.M_inf = 2.0;
+  otfp::complete_reference_geometry("crank_slab", *box, {3}, slab);
+  EXPECT_EQ(slab.length, 3.0);
+  EXPECT_EQ(slab.slab_axis, 1);
+  EXPECT_TRUE(slab.slab_held_at_hi);
+  ASSERT_TRUE(slab.J_inf.has_value());
+  EXPECT_NEAR(*slab.J_inf, 2.0 * (4.0 / 12.0 + 9.0 / 12.0), 1e-14);
+  // Two held faces: no slab geometry.
+  otfp::ReferenceSetup two;
+  two.dim = 2;
+  otfp::complete_reference_geometry("crank_slab", *box, {2, 3}, two);
+  EXPECT_EQ(two.length, 0.0);
+  EXPECT_EQ(two.slab_axis, -1);
+  EXPECT_FALSE(two.J_inf.has_value());
+}

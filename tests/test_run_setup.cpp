@@ -75,6 +75,94 @@ TEST(RunSetup, ParametersFollowTheRules) {
   EXPECT_EQ(setup_run(*ball, neumann, o).options.particle_mass, 1e-3);
 }
 
+// The masses and the fill's count (MassRule, InitialFillRule), each rule
+// recomputed by hand on the box [0, 1] x [0, 2] (its x faces have length 2).
+TEST(RunSetup, MassAndFillRulesApplyInOrder) {
+  const DomainPtr box = make_box(2, Vec3::Zero(), Vec3(1.0, 2.0, 0.0));
+  RunSetupOptions o;
+  o.n_inf = 800;
+  o.t_end = 3.0;
+  const double dr = std::sqrt(2.0 / 800.0);  // (37), the cube rule
+  // An inlet -f = 0.25 on the x = 0 face over [1, 5], cut to [1, 3] by t_end;
+  // an outlet f = 0.1 on x = 1 over [0, 0.5].
+  ConstantBoundaryData inlet{0, PatchKind::Neumann, -0.25};
+  inlet.t_start = 1.0;
+  inlet.t_end = 5.0;
+  ConstantBoundaryData outlet{1, PatchKind::Neumann, 0.1};
+  outlet.t_end = 0.5;
+  const std::vector<ConstantBoundaryData> neumann = {inlet, outlet};
+  const double inflow = 0.25 * 2.0 * 2.0 - 0.1 * 2.0 * 0.5;
+  RunParameters p = run_parameters(*box, neumann, o);
+  EXPECT_NEAR(p.neumann_net_inflow, inflow, 1e-15);
+  // No particles at t = 0: the inflow is the mass to come.
+  EXPECT_EQ(p.M_inf_rule, MassRule::NeumannInflow);
+  EXPECT_NEAR(p.M_inf, inflow, 1e-15);
+  EXPECT_EQ(p.fill_count, 0);
+  // A drawn fill of a given mass: that mass + the inflow, count mass / m_p.
+  o.fill.filled = true;
+  o.fill.mass = 2.5;
+  p = run_parameters(*box, neumann, o);
+  EXPECT_EQ(p.M_inf_rule, MassRule::FillMass);
+  EXPECT_NEAR(p.M_inf, 2.5 + inflow, 1e-14);
+  EXPECT_NEAR(p.particle_mass, (2.5 + inflow) / 800.0, 1e-16);
+  EXPECT_EQ(p.fill_count, std::llround(2.5 / p.particle_mass));
+  // Given particles come before a fill's mass.
+  o.fill.given_count = 123;
+  o.fill.given_mass = 0.75;
+  p = run_parameters(*box, neumann, o);
+  EXPECT_EQ(p.M_inf_rule, MassRule::GivenParticles);
+  EXPECT_NEAR(p.M_inf, 0.75 + inflow, 1e-15);
+  EXPECT_EQ(p.fill_count, 123);
+  // A particle mass with a fill of a given count: count x m_p + the inflow.
+  o.fill = InitialFillRule{};
+  o.fill.filled = true;
+  o.fill.count = 300;
+  o.particle_mass = 0.01;
+  p = run_parameters(*box, neumann, o);
+  EXPECT_EQ(p.M_inf_rule, MassRule::ParticleMass);
+  EXPECT_NEAR(p.M_inf, 300 * 0.01 + inflow, 1e-14);
+  EXPECT_EQ(p.particle_mass, 0.01);
+  EXPECT_EQ(p.fill_count, 300);
+  // An outflow only, no fill: n_inf x m_p.
+  o.fill = InitialFillRule{};
+  p = run_parameters(*box, {outlet}, o);
+  EXPECT_EQ(p.M_inf_rule, MassRule::NInfParticleMass);
+  EXPECT_NEAR(p.M_inf, 800 * 0.01, 1e-14);
+  // Dirichlet data come before every fill rule, a given M_inf before them.
+  o.fill.filled = true;
+  o.fill.mass = 2.5;
+  const std::vector<ConstantBoundaryData> held = {{2, PatchKind::Dirichlet, 0.5}, {3, PatchKind::Dirichlet, 1.5}};
+  p = run_parameters(*box, held, o);
+  EXPECT_EQ(p.M_inf_rule, MassRule::Dirichlet);
+  EXPECT_NEAR(p.M_inf, 1.0 * 2.0, 1e-15);  // (0.5 + 1.5) / 2 x |Omega|
+  o.M_inf = 7.0;
+  EXPECT_EQ(run_parameters(*box, held, o).M_inf_rule, MassRule::Given);
+  EXPECT_EQ(run_parameters(*box, held, o).M_inf, 7.0);
+  // No rule: nothing set, and setup_run refuses.
+  o = RunSetupOptions{};
+  o.fill.filled = true;
+  p = run_parameters(*box, {}, o);
+  EXPECT_EQ(p.M_inf_rule, MassRule::Unset);
+  EXPECT_EQ(p.M_inf, 0.0);
+  EXPECT_EQ(p.fill_count, o.n_inf);
+  EXPECT_EQ(error_of([&] { setup_run(*box, {}, o); }).rfind("particle_mass = 0: ", 0), 0u);
+  // A lattice of spacing ~dr over its box, whatever the fill says.
+  o.n_inf = 800;
+  o.fill = InitialFillRule{};
+  o.fill.lattice = true;
+  o.fill.lattice_hi = Vec3(1.0, 2.0, 0.0);
+  p = run_parameters(*box, held, o);
+  EXPECT_EQ(p.lattice_counts[0], std::llround(1.0 / dr));
+  EXPECT_EQ(p.lattice_counts[1], std::llround(2.0 / dr));
+  EXPECT_EQ(p.lattice_counts[2], 1);
+  EXPECT_EQ(p.fill_count, p.lattice_counts[0] * p.lattice_counts[1]);
+  o.fill.lattice_hi = Vec3(1e6, 2.0, 0.0);
+  EXPECT_EQ(error_of([&] { run_parameters(*box, held, o); }).rfind("fill.lattice = ", 0), 0u);
+  o.fill = InitialFillRule{};
+  o.fill.count = -1;
+  EXPECT_EQ(error_of([&] { run_parameters(*box, held, o); }).rfind("fill.count = -1: ", 0), 0u);
+}
+
 TEST(RunSetup, PresetsAreTheDocumentedTreatments) {
   const TreatmentOptions converging = treatment_preset(TreatmentPreset::Converging, 3);
   EXPECT_EQ(converging.no_flux, NoFluxTreatment::Images);

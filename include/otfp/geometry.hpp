@@ -61,6 +61,15 @@ class Domain {
   virtual Vec3 wrap(const Vec3& x) const { return x; }
   // The primitive shape and its parameters, if the domain is one (see DomainShape).
   virtual std::optional<DomainShape> shape() const { return std::nullopt; }
+  // The default centre of the polar inertia (43): the centre of symmetry of
+  // the primitive (a ball's centre, a box's, a cylinder's mid-axis; a pipe's
+  // box centre whatever its obstacle). Default: the bounding box's centre.
+  virtual Vec3 inertia_center() const;
+  // Mean of |x - c|^2 over Omega at uniform density: M_inf times it is the
+  // steady polar inertia J_inf about c. Closed forms for the primitives
+  // (free space and periodic boxes: their box); default: fixed-seed Monte
+  // Carlo over sample_interior() (2e5 points, the same value every call).
+  virtual double mean_square_distance(const Vec3& c) const;
 
   double signed_distance(const Vec3& x) const { return query(x).signed_distance; }
   Vec3 closest_point(const Vec3& x) const { return query(x).closest_point; }

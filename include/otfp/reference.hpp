@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "otfp/diagnostics.hpp"
+#include "otfp/geometry.hpp"
 #include "otfp/enums.hpp"
 #include "otfp/particles.hpp"
 #include "otfp/types.hpp"
@@ -166,6 +167,20 @@ class Reference {
   static const std::vector<double>& state_entry(const ReferenceState& state, const std::string& key,
                                                 std::size_t size = static_cast<std::size_t>(-1));
 };
+
+// What the Crank references read from the domain and the ids of its
+// Dirichlet patches, filled where
+// `setup` leaves it unset (radius and length 0, J_inf empty; set dim, center
+// and M_inf first):
+// - crank_sphere: R is the ball's; J_inf = (3/5) M_inf R^2 where the domain is
+//   a 3-D ball of that radius and `center` is its centre;
+// - crank_slab on a box with exactly one Dirichlet face (and no length given):
+//   L is the box's extent across that face, the held face is slab_axis /
+//   slab_held_at_hi, [lo, hi] the box, and J_inf = M_inf times the box's mean
+//   squared distance to `center`.
+// Other names are left as they are.
+void complete_reference_geometry(const std::string& name, const Domain& domain,
+                                 const std::vector<int>& dirichlet_patches, ReferenceSetup& setup);
 
 // The registered references, in registration order:
 // crank_sphere, crank_slab, free_space, cosine_mode.

@@ -14,6 +14,7 @@
 //     sim.advance_to(static_cast<double>(k) * setup.parameters.dt);  // the CLI's grid t_k = k dt
 //
 // Every default here is the CLI's: its configuration table reads these structs.
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -49,6 +50,32 @@ struct TreatmentOptions {
 // sphere radius of Tables 1-3 in 3-D only).
 TreatmentOptions treatment_preset(TreatmentPreset preset, int dim);
 
+// The particles at t = 0 (the CLI's particles.fill* keys): how many, and so,
+// where nothing else sets it, the equilibrium mass M_inf.
+struct InitialFillRule {
+  bool filled = false;              // particles drawn at t = 0 (false: none, unless `lattice` or given ones)
+  bool lattice = false;             // a cell-centred lattice over [lattice_lo, lattice_hi]: round(edge / dr) per axis
+  Vec3 lattice_lo = Vec3::Zero();   // the lattice's box
+  Vec3 lattice_hi = Vec3::Zero();
+  std::int64_t count = 0;           // particles of a drawn fill; 0: mass / m_p if mass is given, else n_inf
+  double mass = 0.0;                // total mass of a drawn fill; 0: not given
+  std::int64_t given_count = -1;    // particles given as such (read from a file): how many; -1: none
+  double given_mass = 0.0;          // and their total mass
+  void validate() const;            // throws InvalidArgument naming the field (as fill.<field>)
+};
+
+// Which rule set M_inf (the first that applies, in this order).
+enum class MassRule {
+  Given,          // RunSetupOptions::M_inf
+  Dirichlet,      // area-weighted mean Dirichlet g x |Omega|
+  GivenParticles, // the given particles' mass + the net Neumann inflow over [0, t_end]
+  FillMass,       // fill.mass + the net Neumann inflow
+  ParticleMass,   // (fill.count or n_inf; 0 without a drawn fill) x particle_mass + the net Neumann inflow
+  NInfParticleMass,  // n_inf x particle_mass, where the rule above gives <= 0
+  NeumannInflow,  // no particles at t = 0: the net Neumann inflow (> 0)
+  Unset           // none applies: M_inf and particle_mass stay 0
+};
+
 // The physical inputs of a run.
 struct RunSetupOptions {
   std::int64_t n_inf = 400;       // particles at equilibrium: sets the spacing dr (37) (>= 1)
@@ -69,6 +96,7 @@ struct RunSetupOptions {
   bool bounded = true;            // false: free space (the domain only measures)
   StepperKind stepper = StepperKind::Implicit;  // the diffusive step
   TreatmentOptions treatment;     // the converging preset unless changed
+  InitialFillRule fill;           // the particles at t = 0 (none unless changed)
   void validate() const;          // throws InvalidArgument naming the field
 };
 
@@ -87,15 +115,18 @@ struct RunParameters {
   double barrier_C = 0.0;            // (40) or the given C
   double reservoir_width = 0.0;      // band w (0: no reservoir: no Dirichlet patch, or the layer)
   int reservoir_sublayers = 0;       // sublayers of the band
-  double M_inf = 0.0;                // equilibrium mass (0: neither given nor set by Dirichlet data)
+  double neumann_net_inflow = 0.0;   // integral over [0, t_end] of the inflow -f |A_l| of every Neumann patch
+  double M_inf = 0.0;                // equilibrium mass (0: no rule sets it)
+  MassRule M_inf_rule = MassRule::Unset;  // the rule that set M_inf
   double particle_mass = 0.0;        // m_p (0 while M_inf is)
+  std::int64_t fill_count = 0;       // particles at t = 0: the lattice's, the given ones', or the fill's
+  std::array<std::int64_t, 3> lattice_counts{1, 1, 1};  // fill.lattice: points per axis
 };
 
-// (36)-(40), the step, the band and the masses for `boundary` on `domain`.
-// Throws InvalidArgument naming the RunSetupOptions field at fault; an M_inf
-// that no rule sets is left 0 (setup_run() refuses it, a caller with its own
-// rule, like the CLI's fills, sets it and m_p afterwards). setup_run() refuses
-// a run whose particle mass nothing sets.
+// (36)-(40), the step, the band, the masses and the fill's count for
+// `boundary` on `domain`. Throws InvalidArgument naming the RunSetupOptions
+// field at fault; an M_inf that no rule sets is left 0 (setup_run() refuses
+// it; the CLI then takes M_inf = 1).
 RunParameters run_parameters(const Domain& domain, const std::vector<ConstantBoundaryData>& boundary,
                              const RunSetupOptions& options);
 

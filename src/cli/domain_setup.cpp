@@ -21,15 +21,6 @@ Vec3 project(const Vec3& x, int dim) {
 
 std::string shown(const Vec3& v) { return fmt::format("[{}, {}, {}]", v[0], v[1], v[2]); }
 
-double box_mean_square(const Vec3& lo, const Vec3& hi, int dim, const Vec3& c) {
-  double s = 0.0;
-  for (int k = 0; k < dim; ++k) {
-    const double len = hi[k] - lo[k], mid = 0.5 * (lo[k] + hi[k]);
-    s += len * len / 12.0 + (mid - c[k]) * (mid - c[k]);
-  }
-  return s;
-}
-
 }  // namespace
 
 int resolve_patch(const BuiltDomain& built, const std::string& name) {
@@ -55,15 +46,10 @@ BuiltDomain build_domain(const Config& c) {
     if (d.type == DomainType::Ball) {
       const Vec3 ctr = project(d.center, dim);
       base = make_ball(dim, ctr, d.radius);
-      out.centroid = ctr;
       out.length_L = d.radius;
       out.min_extent = 2.0 * d.radius;
-      out.ball_radius = d.radius;
-      const double r = d.radius;
-      out.mean_square_distance = [ctr, r, dim](const Vec3& cc) {
-        return dim / (dim + 2.0) * r * r + (ctr - cc).squaredNorm();
-      };
       // The "north pole": the end of the last used axis.
+      const double r = d.radius;
       patch_center = [ctr, r, dim](int) { return std::optional<Vec3>(ctr + r * Vec3::Unit(dim - 1)); };
     } else if (d.type == DomainType::Box || d.type == DomainType::PeriodicBox || d.type == DomainType::Free) {
       if (d.type == DomainType::Box) {
@@ -74,11 +60,9 @@ BuiltDomain build_domain(const Config& c) {
         base = make_free_space(dim, lo, hi);
         out.free_space = true;
       }
-      out.centroid = 0.5 * (lo + hi);
       const Vec3 ext = hi - lo;
       out.length_L = ext.head(dim).maxCoeff();
       out.min_extent = ext.head(dim).minCoeff();
-      out.mean_square_distance = [lo, hi, dim](const Vec3& cc) { return box_mean_square(lo, hi, dim, cc); };
       patch_center = [lo, hi](int p) {
         Vec3 x = 0.5 * (lo + hi);
         x[p / 2] = p % 2 == 0 ? lo[p / 2] : hi[p / 2];
@@ -86,14 +70,8 @@ BuiltDomain build_domain(const Config& c) {
       };
     } else if (d.type == DomainType::Cylinder) {
       base = make_cylinder(d.end_a, d.end_b, d.radius);
-      const Vec3 mid = 0.5 * (d.end_a + d.end_b);
-      const double len = (d.end_b - d.end_a).norm(), r = d.radius;
-      out.centroid = mid;
-      out.length_L = r;
-      out.min_extent = std::min(len, 2.0 * r);
-      out.mean_square_distance = [mid, len, r](const Vec3& cc) {
-        return r * r / 2.0 + len * len / 12.0 + (mid - cc).squaredNorm();
-      };
+      out.length_L = d.radius;
+      out.min_extent = std::min((d.end_b - d.end_a).norm(), 2.0 * d.radius);
       const Vec3 a = d.end_a, b = d.end_b;
       patch_center = [a, b](int p) {
         if (p == 1) return std::optional<Vec3>(a);
@@ -117,19 +95,9 @@ BuiltDomain build_domain(const Config& c) {
                                       "(distance from its axis to the walls: {})",
                                       r, clearance));
       base = make_square_pipe_obstacle(dim, lo, hi, axis, oc, r);
-      out.centroid = 0.5 * (lo + hi);
       const Vec3 ext = hi - lo;
       out.length_L = ext.head(dim).maxCoeff();
       out.min_extent = ext.head(dim).minCoeff();
-      const DomainPtr dom = base;
-      out.mean_square_distance = [dom, dim](const Vec3& cc) {
-        // Fixed-seed Monte Carlo: the same value every run.
-        Rng rng(0x6a696e66ULL);
-        constexpr int kSamples = 200000;
-        double s2 = 0.0;
-        for (int i = 0; i < kSamples; ++i) s2 += (project(dom->sample_interior(rng), dim) - cc).squaredNorm();
-        return s2 / kSamples;
-      };
       const int np = 2 * dim;
       patch_center = [lo, hi, np](int p) {
         if (p >= np) return std::optional<Vec3>{};

@@ -12,12 +12,8 @@ namespace otfp::app::detail {
 struct BuiltDomain {
   DomainPtr domain;
   bool free_space = false;        // type = "free": no boundary, no barrier
-  Vec3 centroid = Vec3::Zero();   // default polar-inertia centre
   double length_L = 1.0;          // default L of b = sqrt(L dr)
   double min_extent = 0.0;        // smallest bounding-box edge over the used axes
-  std::optional<double> ball_radius;
-  // Mean of |x - c|^2 over Omega (uniform density): J_inf = M_inf * this.
-  std::function<double(const Vec3& c)> mean_square_distance;
 };
 
 // Throws ConfigError naming the offending key.

@@ -44,6 +44,16 @@ RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded
   o.barrier_factor = c.solver.barrier_factor;
   o.barrier_stiffness = c.solver.barrier_stiffness.value_or(0.0);
   o.kernel_tolerance = c.solver.kernel_tolerance;
+  o.M_inf = c.diagnostics.M_inf.value_or(0.0);
+  o.particle_mass = c.particles.mass.value_or(0.0);
+  const ParticlesSection& pa = c.particles;
+  InitialFillRule& f = o.fill;
+  f.filled = pa.fill != Fill::Empty && pa.fill != Fill::File;  // a file's particles are given ones
+  f.lattice = pa.fill_arrangement == Arrangement::Lattice;
+  f.lattice_lo = c.domain.lo;
+  f.lattice_hi = c.domain.hi;
+  f.count = pa.fill_count.value_or(0);
+  f.mass = pa.fill_mass.value_or(0.0);
   o.bounded = bounded;
   o.stepper = c.solver.stepper;
   const TreatmentSection& tr = c.treatment;
@@ -87,8 +97,17 @@ RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded
       {"reservoir_candidates", "treatment.reservoir_candidates"},
       {"reservoir_integral", "treatment.reservoir_integral"},
       {"reservoir_group_target", "treatment.reservoir_group"},
+      {"M_inf", "diagnostics.M_inf"},
+      {"particle_mass", "particles.mass"},
+      {"fill.count", "particles.fill_count"},
+      {"fill.mass", "particles.fill_mass"},
   };
   const std::string what = e.what();
+  const std::string lattice = "fill.lattice = ";
+  if (what.rfind(lattice, 0) == 0)  // the lattice's size, not a value of the key
+    throw ConfigError("particles.fill_arrangement", "\"lattice\"",
+                      "gives " + what.substr(lattice.size(), what.find(':') - lattice.size()) +
+                          " lattice points (at most 1e8)");
   for (const auto& [field, key] : keys)
     if (what.rfind(field + " = ", 0) == 0) {
       // The rule may name other fields: those of the step and the barrier by their keys as well.

@@ -54,8 +54,20 @@ nlohmann::json opt(const std::optional<T>& v) {
   return v ? nlohmann::json(*v) : nlohmann::json(nullptr);
 }
 
-// Length of [a, b] inside [lo, hi].
-double overlap(double a, double b, double lo, double hi) { return std::max(0.0, std::min(b, hi) - std::max(a, lo)); }
+// The rule that set M_inf, in the configuration's keys (summary.json).
+std::string mass_rule_text(MassRule rule) {
+  switch (rule) {
+    case MassRule::Given: return "diagnostics.M_inf";
+    case MassRule::Dirichlet: return "area-weighted mean Dirichlet g x |Omega|";
+    case MassRule::GivenParticles: return "mass of particles.fill_file + net Neumann inflow over [0, t_end]";
+    case MassRule::FillMass: return "particles.fill_mass + net Neumann inflow over [0, t_end]";
+    case MassRule::ParticleMass: return "initial fill mass + net Neumann inflow over [0, t_end]";
+    case MassRule::NInfParticleMass: return "particles.n_inf x particles.mass";
+    case MassRule::NeumannInflow: return "net Neumann inflow over [0, t_end]";
+    case MassRule::Unset: break;
+  }
+  return "default 1";
+}
 
 // particles.fill = "file": the particles of a CSV (the columns of
 // particles_final.csv) or of one of our .vtp files, wrapped into a periodic
@@ -241,11 +253,18 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     data.push_back(bd);
   }
 
-  // Spacing, width, layer, time step, barrier (36)-(40) and the band: the
-  // library's rules (run_setup.hpp), its fields named by their keys here.
+  // Spacing, width, layer, time step, barrier (36)-(40), the band, the
+  // masses and the fill's count: the library's rules (run_setup.hpp), its
+  // fields named by their keys here.
+  const ParticlesSection& pa = c.particles;
+  if (pa.fill == Fill::File) st.file_particles = read_fill_file(c, domain_);
   Derived& d = derived_;
   d.length_L = c.particles.length_L > 0.0 ? c.particles.length_L : st.built.length_L;
   RunSetupOptions ro = detail::run_setup_options(c, d.length_L, !free_space_);
+  if (st.file_particles) {
+    ro.fill.given_count = static_cast<std::int64_t>(st.file_particles->size());
+    ro.fill.given_mass = st.file_particles->total_mass();
+  }
   RunParameters rp;
   try {
     rp = run_parameters(*domain_, data, ro);
@@ -278,41 +297,10 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   d.barrier_C = rp.barrier_C;
   d.reservoir_width = rp.reservoir_width;
   d.reservoir_sublayers = rp.reservoir_sublayers;
-
-  // Net Neumann inflow over [0, t_end] (f is the outward flux: inflow is -f).
-  for (const PatchInfo& p : patches_)
-    if (p.kind == PatchKind::Neumann)
-      d.neumann_net_inflow += -p.value * p.area *
-                              overlap(0.0, c.run.t_end, p.t_start,
-                                      p.t_end.value_or(std::numeric_limits<double>::infinity()));
-
-  // M_inf and the particle mass.
-  const ParticlesSection& pa = c.particles;
-  if (c.diagnostics.M_inf) {
-    d.M_inf = *c.diagnostics.M_inf;
-    d.M_inf_rule = "diagnostics.M_inf";
-  } else if (any_dirichlet) {
-    d.M_inf = rp.M_inf;
-    d.M_inf_rule = "area-weighted mean Dirichlet g x |Omega|";
-  } else if (pa.fill == Fill::File) {
-    st.file_particles = read_fill_file(c, domain_);
-    d.M_inf = st.file_particles->total_mass() + d.neumann_net_inflow;
-    d.M_inf_rule = "mass of particles.fill_file + net Neumann inflow over [0, t_end]";
-  } else if (pa.fill != Fill::Empty && pa.fill_mass) {
-    d.M_inf = *pa.fill_mass + d.neumann_net_inflow;
-    d.M_inf_rule = "particles.fill_mass + net Neumann inflow over [0, t_end]";
-  } else if (pa.mass) {
-    const double n0 = pa.fill == Fill::Empty ? 0.0 : static_cast<double>(pa.fill_count.value_or(pa.n_inf));
-    d.M_inf = n0 * *pa.mass + d.neumann_net_inflow;
-    d.M_inf_rule = "initial fill mass + net Neumann inflow over [0, t_end]";
-    if (!(d.M_inf > 0.0)) {
-      d.M_inf = static_cast<double>(pa.n_inf) * *pa.mass;
-      d.M_inf_rule = "particles.n_inf x particles.mass";
-    }
-  } else if (pa.fill == Fill::Empty && d.neumann_net_inflow > 0.0) {
-    d.M_inf = d.neumann_net_inflow;
-    d.M_inf_rule = "net Neumann inflow over [0, t_end]";
-  } else {
+  d.neumann_net_inflow = rp.neumann_net_inflow;
+  d.M_inf = rp.M_inf;
+  d.M_inf_rule = mass_rule_text(rp.M_inf_rule);
+  if (rp.M_inf_rule == MassRule::Unset) {
     d.M_inf = 1.0;
     d.M_inf_rule = "default 1";
   }
@@ -320,32 +308,8 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     throw ConfigError("diagnostics.M_inf", fmt::format("{} ({})", d.M_inf, d.M_inf_rule),
                       "must be > 0: set diagnostics.M_inf or particles.mass");
   d.particle_mass = pa.mass ? *pa.mass : d.M_inf / static_cast<double>(pa.n_inf);
-
-  if (pa.fill_arrangement == Arrangement::Lattice) {
-    // Cell-centred lattice of spacing ~dr: round(edge / dr) points per axis.
-    double total = 1.0;  // in double first: an extreme box must not overflow the count
-    for (int k = 0; k < dim; ++k) total *= std::max(1.0, std::round((c.domain.hi[k] - c.domain.lo[k]) / d.dr));
-    if (!(total <= 1e8))
-      throw ConfigError("particles.fill_arrangement", "\"lattice\"",
-                        fmt::format("gives {:.3g} lattice points (at most 1e8)", total));
-    d.fill_count = 1;
-    for (int k = 0; k < dim; ++k) {
-      d.lattice_counts[static_cast<std::size_t>(k)] =
-          std::max<std::int64_t>(1, std::llround((c.domain.hi[k] - c.domain.lo[k]) / d.dr));
-      d.fill_count *= d.lattice_counts[static_cast<std::size_t>(k)];
-    }
-  } else if (pa.fill == Fill::File) {
-    if (!st.file_particles) st.file_particles = read_fill_file(c, domain_);
-    d.fill_count = static_cast<std::int64_t>(st.file_particles->size());
-  } else if (pa.fill != Fill::Empty) {
-    if (pa.fill_count) {
-      d.fill_count = *pa.fill_count;
-    } else if (pa.fill_mass) {
-      d.fill_count = std::llround(*pa.fill_mass / d.particle_mass);
-    } else {
-      d.fill_count = pa.n_inf;
-    }
-  }
+  d.fill_count = rp.fill_count;
+  d.lattice_counts = rp.lattice_counts;
   if (d.fill_count > 100'000'000)
     throw ConfigError(pa.fill_count ? "particles.fill_count" : pa.fill_mass ? "particles.fill_mass" : "particles.n_inf",
                       fmt::format("{} particles", d.fill_count), "must give at most 1e8 particles");
@@ -386,49 +350,42 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
     d.mode_wavenumber = 2.0 * kPi * static_cast<double>(pa.fill_mode) / length;
   }
 
-  // Diagnostics centre, J_inf, reference curves.
-  d.center = c.diagnostics.center ? *c.diagnostics.center : st.built.centroid;
+  // Diagnostics centre, J_inf, and what the reference curves read from the
+  // domain (reference.hpp).
+  d.center = c.diagnostics.center ? *c.diagnostics.center : domain_->inertia_center();
   for (int k = dim; k < 3; ++k) d.center[k] = 0.0;
   if (c.diagnostics.J_inf) {
     d.J_inf = *c.diagnostics.J_inf;
     d.J_inf_rule = "diagnostics.J_inf";
-  } else if (!free_space_ && st.built.mean_square_distance) {
-    d.J_inf = d.M_inf * st.built.mean_square_distance(d.center);
+  } else if (!free_space_) {
+    d.J_inf = d.M_inf * domain_->mean_square_distance(d.center);
     d.J_inf_rule = "uniform density M_inf/|Omega| about diagnostics.center";
   }
   const std::string& ref = c.diagnostics.reference;
+  ReferenceSetup rs;
+  rs.dim = dim;
+  rs.center = d.center;
+  rs.M_inf = d.M_inf;
+  rs.radius = c.diagnostics.reference_radius.value_or(0.0);
+  rs.length = c.diagnostics.reference_length.value_or(0.0);
+  std::vector<int> held;
+  for (const ConstantBoundaryData& b : data)
+    if (b.kind == PatchKind::Dirichlet) held.push_back(b.patch);
+  complete_reference_geometry(ref, *domain_, held, rs);
   if (ref == "crank_sphere") {
-    d.reference_radius = c.diagnostics.reference_radius ? c.diagnostics.reference_radius : st.built.ball_radius;
-    if (!d.reference_radius)
+    if (!(rs.radius > 0.0))
       throw ConfigError("diagnostics.reference_radius", "(missing)",
                         "required for reference = \"crank_sphere\" on a domain that is not a ball");
-    // Polar-inertia reference: a 3D ball about its own centre.
-    if (st.built.ball_radius && dim == 3 && (d.center - c.domain.center).norm() <= 1e-12 * *d.reference_radius &&
-        std::abs(*d.reference_radius - *st.built.ball_radius) <= 1e-12 * *d.reference_radius)
-      d.reference_J_inf = 0.6 * d.M_inf * *d.reference_radius * *d.reference_radius;
+    d.reference_radius = rs.radius;
   } else if (ref == "crank_slab") {
-    d.reference_length = c.diagnostics.reference_length;
-    if (!d.reference_length && c.domain.type == DomainType::Box) {
-      int face = -1, count = 0;
-      for (const PatchInfo& p : patches_)
-        if (p.kind == PatchKind::Dirichlet) {
-          face = p.id;
-          ++count;
-        }
-      if (count == 1 && face < 2 * dim) {
-        d.reference_length = c.domain.hi[face / 2] - c.domain.lo[face / 2];
-        if (!c.diagnostics.reference_length && st.built.mean_square_distance) {
-          // Polar-inertia reference: the slab profile across the box.
-          d.slab_axis = face / 2;
-          d.slab_held_at_hi = face % 2 == 1;
-          d.reference_J_inf = d.M_inf * st.built.mean_square_distance(d.center);
-        }
-      }
-    }
-    if (!d.reference_length)
+    if (!(rs.length > 0.0))
       throw ConfigError("diagnostics.reference_length", "(missing)",
                         "required for reference = \"crank_slab\" unless the domain is a box with one Dirichlet face");
+    d.reference_length = rs.length;
   }
+  d.reference_J_inf = rs.J_inf;
+  d.slab_axis = rs.slab_axis;
+  d.slab_held_at_hi = rs.slab_held_at_hi;
 
   // The library object: projection, barrier, walls and stepper (Algorithm 1).
   rp.M_inf = d.M_inf;
