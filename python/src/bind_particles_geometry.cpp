@@ -168,6 +168,9 @@ void bind_particles_geometry(py::module_& m) {
       .def_property_readonly("volume", &Domain::volume)
       .def_property_readonly("num_patches", &Domain::num_patches)
       .def_property_readonly("is_periodic", &Domain::is_periodic)
+      .def_property_readonly("inertia_center", &Domain::inertia_center, "default centre of the polar inertia")
+      .def("mean_square_distance", &Domain::mean_square_distance, py::arg("center"),
+           "mean of |x - c|^2 over Omega at uniform density (J_inf = M_inf x it)")
       .def("patch_area", &Domain::patch_area, py::arg("patch"))
       .def("patch_name", &Domain::patch_name, py::arg("patch"))
       .def("patch_by_name", &Domain::patch_by_name, py::arg("name"), "patch id, or -1")

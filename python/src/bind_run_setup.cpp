@@ -36,6 +36,26 @@ void bind_run_setup(py::module_& m) {
       .done();
   m.def("treatment_preset", &treatment_preset, py::arg("preset"), py::arg("dim"),
         "The TreatmentOptions of a preset (converging | papers) in dimension dim.");
+  Options<InitialFillRule>(m, "InitialFillRule", "The particles at t = 0: how many, and so M_inf where nothing else sets it.")
+      .field("filled", &InitialFillRule::filled, "particles drawn at t = 0")
+      .field("lattice", &InitialFillRule::lattice, "a lattice of spacing ~dr over [lattice_lo, lattice_hi]")
+      .field("lattice_lo", &InitialFillRule::lattice_lo, "the lattice's box")
+      .field("lattice_hi", &InitialFillRule::lattice_hi, "the lattice's box")
+      .field("count", &InitialFillRule::count, "particles of a drawn fill; 0: mass / m_p, else n_inf")
+      .field("mass", &InitialFillRule::mass, "total mass of a drawn fill; 0: not given")
+      .field("given_count", &InitialFillRule::given_count, "given particles (a file): how many; -1: none")
+      .field("given_mass", &InitialFillRule::given_mass, "their total mass")
+      .validated()
+      .done();
+  py::enum_<MassRule>(m, "MassRule", "Which rule set M_inf (the first that applies).")
+      .value("Given", MassRule::Given)
+      .value("Dirichlet", MassRule::Dirichlet)
+      .value("GivenParticles", MassRule::GivenParticles)
+      .value("FillMass", MassRule::FillMass)
+      .value("ParticleMass", MassRule::ParticleMass)
+      .value("NInfParticleMass", MassRule::NInfParticleMass)
+      .value("NeumannInflow", MassRule::NeumannInflow)
+      .value("Unset", MassRule::Unset);
   Options<RunSetupOptions>(m, "RunSetupOptions", "The physical inputs of a run (run_setup.hpp).")
       .field("n_inf", &RunSetupOptions::n_inf, "particles at equilibrium: the spacing (37)")
       .field("kappa", &RunSetupOptions::kappa, "diffusivity")
@@ -55,6 +75,7 @@ void bind_run_setup(py::module_& m) {
       .field("bounded", &RunSetupOptions::bounded, "False: free space")
       .field("stepper", &RunSetupOptions::stepper, "implicit | explicit")
       .field("treatment", &RunSetupOptions::treatment, "TreatmentOptions")
+      .field("fill", &RunSetupOptions::fill, "InitialFillRule")
       .validated()
       .done();
   py::class_<RunParameters>(m, "RunParameters", "What the rules (36)-(40) give for a run.")
@@ -71,8 +92,12 @@ void bind_run_setup(py::module_& m) {
       .def_readonly("barrier_C", &RunParameters::barrier_C)
       .def_readonly("reservoir_width", &RunParameters::reservoir_width)
       .def_readonly("reservoir_sublayers", &RunParameters::reservoir_sublayers)
+      .def_readonly("neumann_net_inflow", &RunParameters::neumann_net_inflow)
       .def_readonly("M_inf", &RunParameters::M_inf)
-      .def_readonly("particle_mass", &RunParameters::particle_mass);
+      .def_readonly("M_inf_rule", &RunParameters::M_inf_rule)
+      .def_readonly("particle_mass", &RunParameters::particle_mass)
+      .def_readonly("fill_count", &RunParameters::fill_count)
+      .def_readonly("lattice_counts", &RunParameters::lattice_counts);
   py::class_<RunSetup>(m, "RunSetup", "parameters (RunParameters) and options (SimulationOptions) of a run.")
       .def_readonly("parameters", &RunSetup::parameters)
       .def_readonly("options", &RunSetup::options);

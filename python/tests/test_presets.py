@@ -69,3 +69,31 @@ def test_str_of_an_enum_is_its_configuration_name():
         assert str(otfp.TimeScheme(name)) == name
     assert repr(otfp.PatchKind.Dirichlet) == "<PatchKind.Dirichlet: 1>" or "PatchKind.Dirichlet" in repr(
         otfp.PatchKind.Dirichlet)
+
+
+def test_fill_and_mass_rules_of_the_library_give_the_command_line_numbers():
+    """pipe_neumann: no Dirichlet data, a Neumann inlet, a fill of a given mass and M_inf
+    given; the library's InitialFillRule gives the command line's net inflow, M_inf, m_p and
+    fill count, and the domain's measures the J_inf the command line reports."""
+    run = otfp.load_config(otfp.example_config("pipe_neumann.toml"), [])
+    d = run.description
+    pa = d["config"]["particles"]
+    boundary = [otfp.BoundaryData(patch=b["id"], kind=b["kind"], value=b["value"])
+                for b in d["derived"]["patches"] if b["kind"] != "no_flux"]
+    o = otfp.RunSetupOptions()
+    o.n_inf = pa["n_inf"]
+    o.kappa = d["config"]["physics"]["kappa"]
+    o.t_end = d["config"]["run"]["t_end"]
+    o.length_L = d["derived"]["length_L"]
+    o.fill.filled = True
+    o.fill.mass = pa["fill_mass"]
+    assert otfp.setup_run(run.domain, boundary, o).parameters.M_inf_rule == otfp.MassRule.FillMass
+    o.M_inf = d["config"]["diagnostics"]["M_inf"]
+    p = otfp.setup_run(run.domain, boundary, o).parameters
+    assert p.M_inf_rule == otfp.MassRule.Given
+    assert (p.M_inf, p.particle_mass) == (d["derived"]["M_inf"], d["derived"]["particle_mass"])
+    assert p.neumann_net_inflow == d["derived"]["neumann_net_inflow"]
+    assert p.fill_count == d["derived"]["fill_count"]
+    center = run.domain.inertia_center
+    assert list(center) == d["derived"]["center"]
+    assert d["derived"]["J_inf"] == d["derived"]["M_inf"] * run.domain.mean_square_distance(center)

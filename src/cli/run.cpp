@@ -95,6 +95,21 @@ void on_every_rank(const otfp::Simulation& sim, Write&& write) {
   throw detail::RunError("another rank could not write its files (its error is on stderr)");
 }
 
+// A fresh start (Algorithm 1 runs in the library): the initial particles'
+// count and mass for the summary, every particle on rank 0 of a distributed
+// run (start() hands them out), and the reservoir (if any) filled before the
+// first step, counted as step 0's insertions.
+void start_fresh(otfp::Simulation& sim, ParticleSet fill, Rng& rng, detail::DriverSums& sums) {
+  sums.n0 = static_cast<std::int64_t>(fill.size());
+  sums.M0 = fill.total_mass();
+  if (!sim.root_process()) {
+    const ParticleId next = fill.next_id();
+    fill = ParticleSet(fill.dim());
+    fill.set_next_id(next);
+  }
+  sim.start(std::move(fill), rng, 0.0);
+}
+
 }  // namespace
 
 RunResult ConfiguredRun::run(const RunOptions& options) {
@@ -134,18 +149,8 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
     const auto fingerprint = files.active() ? config_fingerprint(c) : std::map<std::string, std::string>{};
     if (!options.resume) {
       ParticleSet fill = initial_particles(rng);
-      rows.sums.n0 = static_cast<std::int64_t>(fill.size());
-      rows.sums.M0 = fill.total_mass();
       on_every_rank(sim, [&] { files.create(layout.header(), timing.header()); });
-      // A distributed run starts with every particle on rank 0 (start() hands them out).
-      if (!sim.root_process()) {
-        const ParticleId next = fill.next_id();
-        fill = ParticleSet(c.run.dim);
-        fill.set_next_id(next);
-      }
-      // Algorithm 1 runs in the library; the reservoir (if any) is filled
-      // before the first step, counted as step 0's insertions.
-      sim.start(std::move(fill), rng, 0.0);
+      start_fresh(sim, std::move(fill), rng, rows.sums);
       emit(rows(0, 0.0, nullptr, sim.initial_step().inserted, sim.initial_step().removed), false);
     } else {
       ResumeStart start;
