@@ -26,6 +26,7 @@
 
 using namespace otfp;
 using namespace otfp::app;
+using otfp::StepRecord;
 namespace fs = std::filesystem;
 
 namespace {

@@ -31,6 +31,7 @@
 #include "otfp_app/simulation.hpp"
 
 using namespace otfp::app;
+using otfp::StepRecord;
 namespace fs = std::filesystem;
 
 namespace {

@@ -13,15 +13,20 @@
 #include <string>
 #include <vector>
 
+#include "otfp/run_record.hpp"
+#include "otfp/run_setup.hpp"
+#include "otfp/series_layout.hpp"
+#include "otfp_app/config.hpp"
 #include "otfp_app/series_columns.hpp"
+#include "otfp_app/simulation.hpp"
 
 namespace {
 
-using otfp::app::ColumnKind;
-using otfp::app::ColumnWhen;
-using otfp::app::SeriesLayout;
-using otfp::app::StepRecord;
-using otfp::app::series_columns;
+using otfp::ColumnKind;
+using otfp::ColumnWhen;
+using otfp::SeriesLayout;
+using otfp::StepRecord;
+using otfp::series_columns;
 
 // The first cells of the `| column | unit | meaning |` table of the
 // "## `<file>`" section of docs/outputs.md, backticks removed.
@@ -62,7 +67,7 @@ TEST(OutputSchema, DocsListExactlyTheColumnsOfTheTable) {
 // header and rows are written from it.
 TEST(OutputSchema, TimingColumnsAreDocumentedAndWritten) {
   std::vector<std::string> table;
-  for (const auto& c : otfp::app::timing_columns()) table.push_back(c.name);
+  for (const auto& c : otfp::timing_columns()) table.push_back(c.name);
   EXPECT_EQ(documented_columns("timing.csv"), table);
   const SeriesLayout timing = SeriesLayout::timing();
   std::string joined;
@@ -138,3 +143,52 @@ TEST(OutputSchema, HeaderRowsAndFinalFollowTheTable) {
 }
 
 }  // namespace
+
+// series.csv from library calls alone: setup_run, a Simulation stepped on the
+// grid t_k = k dt, the Crank reference from the domain's geometry, and a
+// RunRecorder whose rows SeriesLayout writes; the command line's rows of the
+// same configuration are the same text, row for row.
+TEST(RunRecorder, LibraryRowsAreTheCommandLineSeries) {
+  const std::string text =
+      "[domain]\ntype = \"ball\"\nradius = 1.0\n"
+      "[[boundary]]\npatch = \"surface\"\nkind = \"dirichlet\"\nvalue = 0.3\n"
+      "[run]\nt_end = 0.25\n"
+      "[particles]\nn_inf = 150\n"
+      "[diagnostics]\nreference = \"crank_sphere\"\n";
+  otfp::app::ConfiguredRun cli(otfp::app::parse_config_string(text));
+  otfp::app::RunOptions ro;
+  const otfp::app::RunResult theirs = cli.run(ro);
+  ASSERT_EQ(theirs.status, "completed") << theirs.error;
+
+  const otfp::DomainPtr ball = otfp::make_ball(3, otfp::Vec3::Zero(), 1.0);
+  const std::vector<otfp::ConstantBoundaryData> data = {{0, otfp::PatchKind::Dirichlet, 0.3}};
+  otfp::RunSetupOptions o;
+  o.n_inf = 150;
+  o.t_end = 0.25;
+  const otfp::RunSetup setup = otfp::setup_run(*ball, data, o);
+  otfp::Simulation sim(ball, data, setup.options);
+  otfp::ReferenceSetup rs;
+  rs.center = ball->inertia_center();
+  rs.M_inf = setup.parameters.M_inf;
+  rs.t_end = o.t_end;
+  rs.constant_dt = setup.parameters.dt;
+  otfp::complete_reference_geometry("crank_sphere", *ball, {0}, rs);
+  const std::unique_ptr<otfp::Reference> reference = otfp::make_reference("crank_sphere", rs);
+  otfp::RecorderOptions rec;
+  rec.center = rs.center;
+  rec.M_inf = setup.parameters.M_inf;
+  rec.J_inf = setup.parameters.M_inf * ball->mean_square_distance(rs.center);
+  otfp::RunRecorder rows(sim, rec, reference.get());
+  rows.step_dt = setup.parameters.dt;
+  const SeriesLayout layout(true, reference->has_mass_blob_error(), reference->columns());
+  sim.start(otfp::ParticleSet(3));
+  std::vector<std::string> mine = {layout.row(rows(0, 0.0, nullptr, sim.initial_step().inserted,
+                                                   sim.initial_step().removed))};
+  ASSERT_EQ(setup.parameters.n_steps, 3);
+  ASSERT_EQ(theirs.series.size(), 4u);
+  for (std::int64_t k = 1; k <= 3; ++k) {
+    const otfp::SimulationStep s = sim.advance_to(static_cast<double>(k) * setup.parameters.dt);
+    mine.push_back(layout.row(rows(k, s.t_end, &s.diffusion, s.inserted, s.removed)));
+  }
+  for (std::size_t i = 0; i < mine.size(); ++i) EXPECT_EQ(mine[i], layout.row(theirs.series[i])) << "row " << i;
+}

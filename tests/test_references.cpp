@@ -24,6 +24,7 @@
 #include "otfp_app/simulation.hpp"
 
 using namespace otfp::app;
+using otfp::StepRecord;
 using otfp::test::fresh_dir;
 using otfp::test::read_csv;
 namespace fs = std::filesystem;

@@ -9,6 +9,7 @@
 #include <functional>
 
 #include "configured_run_state.hpp"
+#include "otfp/series_layout.hpp"
 #include "otfp_app/series_columns.hpp"
 #include "run_parts.hpp"
 
@@ -99,7 +100,7 @@ void on_every_rank(const otfp::Simulation& sim, Write&& write) {
 // count and mass for the summary, every particle on rank 0 of a distributed
 // run (start() hands them out), and the reservoir (if any) filled before the
 // first step, counted as step 0's insertions.
-void start_fresh(otfp::Simulation& sim, ParticleSet fill, Rng& rng, detail::DriverSums& sums) {
+void start_fresh(otfp::Simulation& sim, ParticleSet fill, Rng& rng, RunSums& sums) {
   sums.n0 = static_cast<std::int64_t>(fill.size());
   sums.M0 = fill.total_mass();
   if (!sim.root_process()) {
@@ -127,7 +128,12 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
   const SeriesLayout layout(d.J_inf.has_value(), reference && reference->has_mass_blob_error(),
                             reference ? reference->columns() : std::vector<std::string>{});
   const SeriesLayout timing = SeriesLayout::timing();
-  RowMaker rows(d, sim, reference.get(), wall);
+  RecorderOptions ro;
+  ro.center = d.center;
+  ro.M_inf = d.M_inf;
+  ro.J_inf = d.J_inf;
+  RunRecorder rows(sim, ro, reference.get(), [&wall] { return wall(); });
+  rows.step_dt = d.dt;
   ProgressLine progress(c, d, sim, wall, options.progress && sim.root_process());
   RunFiles files(*this, sim, options.out_dir, options.stop_flag != nullptr,
                  [&](const std::string& status, const std::string& error, const StepRecord& last) {

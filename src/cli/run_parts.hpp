@@ -18,6 +18,7 @@
 
 #include "otfp/mass_measure.hpp"
 #include "otfp/reference.hpp"
+#include "otfp/run_record.hpp"
 #include "otfp/simulation.hpp"
 #include "otfp_app/simulation.hpp"
 #include "otfp_app/writers.hpp"
@@ -51,36 +52,6 @@ class WallClock {
 // The analytic reference of diagnostics.reference (otfp/reference.hpp), or null.
 std::unique_ptr<Reference> configured_reference(const Config& c, const Derived& d);
 
-// The driver's running sums next to the library's state (kept in the checkpoint).
-struct DriverSums {
-  L1Norms l1;  // (46): the rectangle sums go into the series, the trapezoid sums into summary.json
-  StateMeasures prev_measures;
-  std::int64_t n0 = 0;  // initial particles and mass
-  double M0 = 0.0;
-};
-
-// The diagnostics of a row (StepRecord) from the simulation's state.
-class RowMaker {
- public:
-  RowMaker(const Derived& d, const otfp::Simulation& sim, Reference* reference, const WallClock& wall);
-  StepRecord operator()(std::int64_t step, double t, const StepSummary* sum, long inserted, long removed);
-  const std::vector<std::int32_t>& region() const { return region_; }
-
-  DriverSums sums;
-  // The step being taken (fixed: d.dt, as (46) is summed; adaptive: its own
-  // length) and the tries the error test rejected before it.
-  double step_dt = 0.0;
-  std::int64_t step_rejections = 0;
-
- private:
-  const Derived& d_;
-  const otfp::Simulation& sim_;
-  Reference* reference_;
-  const WallClock& wall_;
-  BlobMassOptions blob_options_;
-  std::vector<std::int32_t> region_;
-};
-
 // The progress line on stderr (at most five a second, and the final one).
 class ProgressLine {
  public:
@@ -103,7 +74,7 @@ class ProgressLine {
 
 // summary.json (docs/outputs.md) of the run as it stands.
 nlohmann::json run_summary(const ConfiguredRun& run, const otfp::Simulation& sim, const Reference* reference,
-                           const DriverSums& sums, double wall_seconds, const std::string& status,
+                           const RunSums& sums, double wall_seconds, const std::string& status,
                            const std::string& error, const StepRecord& last);
 
 // The files of a run in its directory (none when it is empty): series.csv
@@ -154,7 +125,7 @@ class RunFiles {
 };
 
 // The driver state a checkpoint keeps next to the library's.
-nlohmann::json driver_state(const RowMaker& rows, const Reference* reference, const RunFiles& files,
+nlohmann::json driver_state(const RunRecorder& rows, const Reference* reference, const RunFiles& files,
                             const StepRecord& last, const std::map<std::string, std::string>& fingerprint);
 
 // What a resume continues from, read and checked before any file is touched.
@@ -166,7 +137,7 @@ struct ResumeStart {
 // Loads checkpoint.bin of `files.dir()` into sim, rows, reference and files
 // after checking it against the configuration (`fingerprint`); throws
 // ResumeRefused.
-ResumeStart read_resume(otfp::Simulation& sim, RowMaker& rows, Reference* reference, RunFiles& files,
+ResumeStart read_resume(otfp::Simulation& sim, RunRecorder& rows, Reference* reference, RunFiles& files,
                         const RunControl& control, const Config& c, const std::string& series_header,
                         const std::string& timing_header, const std::map<std::string, std::string>& fingerprint);
 

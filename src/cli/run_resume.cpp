@@ -135,7 +135,7 @@ void check_fingerprint(const nlohmann::json& js, const std::map<std::string, std
 
 }  // namespace
 
-nlohmann::json driver_state(const RowMaker& rows, const Reference* reference, const RunFiles& files,
+nlohmann::json driver_state(const RunRecorder& rows, const Reference* reference, const RunFiles& files,
                             const StepRecord& last, const std::map<std::string, std::string>& fingerprint) {
   nlohmann::json js;
   js["l1"] = l1_state(rows.sums.l1);
@@ -153,7 +153,7 @@ nlohmann::json driver_state(const RowMaker& rows, const Reference* reference, co
   return js;
 }
 
-ResumeStart read_resume(otfp::Simulation& sim, RowMaker& rows, Reference* reference, RunFiles& files,
+ResumeStart read_resume(otfp::Simulation& sim, RunRecorder& rows, Reference* reference, RunFiles& files,
                         const RunControl& control, const Config& c, const std::string& series_header,
                         const std::string& timing_header, const std::map<std::string, std::string>& fingerprint) {
   const std::filesystem::path& out = files.dir();

@@ -43,7 +43,7 @@ nlohmann::json reference_json(const Reference& ref) {
 }
 
 // summary.json "ledger": the run's and each patch's insertions and removals.
-nlohmann::json ledger_json(const ConfiguredRun& run, const otfp::Simulation& sim, const DriverSums& sums) {
+nlohmann::json ledger_json(const ConfiguredRun& run, const otfp::Simulation& sim, const RunSums& sums) {
   nlohmann::json patches = nlohmann::json::array();
   for (const PatchInfo& p : run.patches()) {
     nlohmann::json j = {{"patch", p.name}, {"kind", to_string(p.kind)}};
@@ -78,7 +78,7 @@ nlohmann::json ledger_json(const ConfiguredRun& run, const otfp::Simulation& sim
 }  // namespace
 
 nlohmann::json run_summary(const ConfiguredRun& run, const otfp::Simulation& sim, const Reference* reference,
-                           const DriverSums& sums, double wall_seconds, const std::string& status,
+                           const RunSums& sums, double wall_seconds, const std::string& status,
                            const std::string& error, const StepRecord& last) {
   const Config& c = run.config();
   const L1Norms& l1 = sums.l1;

@@ -21,6 +21,7 @@
 
 #include "otfp/explicit_stepper.hpp"
 #include "otfp/implicit_stepper.hpp"
+#include "otfp/initial_fill.hpp"
 #include "otfp/run_setup.hpp"
 #include "otfp/types.hpp"
 
@@ -110,9 +111,9 @@ struct ParticlesSection {
   std::optional<std::int64_t> fill_count;
   std::optional<double> fill_mass;
   std::optional<Vec3> fill_center;
-  double fill_sigma = 0.1;
+  double fill_sigma = FillOptions{}.sigma;
   Arrangement fill_arrangement = Arrangement::Random;  // random | lattice (box-shaped domains)
-  double fill_amplitude = 0.5;  // a of the cosine fill 1 + a cos(k x)
+  double fill_amplitude = FillOptions{}.amplitude;  // a of the cosine fill 1 + a cos(k x)
   std::int64_t fill_mode = 1;   // k = 2 pi fill_mode / (hi_x - lo_x)
 };
 
@@ -134,7 +135,7 @@ struct BoundarySpec {
 // The keys that set a library option take their default from the library's
 // option struct (one default per option; tests/test_config.cpp pins the values).
 struct SolverSection {
-  StepperKind stepper = StepperKind::Implicit;  // implicit | explicit
+  StepperKind stepper = RunSetupOptions{}.stepper;  // implicit | explicit
   Backend backend = ImplicitOptions{}.minimizer.backend;      // ceres | nlopt
   Algorithm algorithm = ImplicitOptions{}.minimizer.algorithm;  // lbfgs | ... (by backend)
   ExplicitScheme explicit_scheme = ExplicitOptions{}.scheme;         // euler27 | rk4 | euler_exact

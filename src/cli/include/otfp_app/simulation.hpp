@@ -18,6 +18,7 @@
 #include <nlohmann/json.hpp>
 
 #include "otfp/boundary.hpp"
+#include "otfp/run_record.hpp"
 #include "otfp/geometry.hpp"
 #include "otfp/particles.hpp"
 #include "otfp/simulation.hpp"
@@ -75,31 +76,6 @@ struct Derived {
   bool slab_held_at_hi = false;           // the held face is x = hi (else x = lo)
   std::array<std::int64_t, 3> lattice_counts{1, 1, 1};  // fill_arrangement = lattice: points per axis
   double mode_wavenumber = 0.0;           // k of the cosine fill
-};
-
-// Diagnostics of one step (row of series.csv).
-struct StepRecord {
-  std::int64_t step = 0;
-  double t = 0.0, dt = 0.0;
-  std::int64_t n_particles = 0, n_inside = 0, n_buffer = 0, n_outside = 0;
-  double mass_total = 0.0, mass_inside = 0.0, mass_with_layer = 0.0;
-  double polar_inertia = 0.0, polar_inertia_with_layer = 0.0, polar_inertia_total = 0.0;
-  std::int64_t inserted = 0, removed = 0, inserted_total = 0, removed_total = 0;
-  double energy = 0.0, transport = 0.0, entropy = 0.0, barrier = 0.0, residual_displacement = 0.0;
-  std::int64_t iterations = 0, evaluations = 0, list_builds = 0, halvings = 0;
-  std::optional<double> error_estimate;           // local time-error estimate of the accepted step (in widths)
-  std::int64_t rejected_steps = 0;                // adaptive dt: tries rejected by the error test before this step
-  double mean_age = 0.0, max_age = 0.0;
-  double l1_mass = 0.0, l1_polar_inertia = 0.0;  // running (46a)-(46b), rectangle rule, all particles
-  double mass_ratio = 0.0;                        // mass_inside / M_inf
-  double mass_blob = 0.0;                         // M_rho: the blob density integrated over Omega
-  double mass_blob_ratio = 0.0;                   // mass_blob / M_inf
-  std::optional<double> error_mass_blob;          // mass_blob_ratio - Crank's M/M_inf (crank_* references)
-  std::optional<double> polar_inertia_ratio;      // polar_inertia / J_inf
-  std::optional<double> reference;                // the primary reference value (first reference column)
-  std::vector<double> reference_values;           // the reference columns of series.csv, in order
-  // Timing: kept out of series.csv so that it is reproducible byte for byte.
-  double wall_seconds = 0.0, step_seconds = 0.0, solver_seconds = 0.0, list_seconds = 0.0;
 };
 
 // Exit code of a run stopped by SIGINT/SIGTERM (checkpoint written; continue
