@@ -3,8 +3,11 @@
 // (otfp/reference.hpp: Reference, make_reference, ErrorStatistics, decay_rate_fit).
 #include "common.hpp"
 
+#include <memory>
+#include <mutex>
 #include <string>
 #include <variant>
+#include <vector>
 
 #include "otfp/analytic.hpp"
 #include "otfp/diagnostics.hpp"
@@ -12,6 +15,8 @@
 #include "otfp/neighbor_list.hpp"
 #include "otfp/parameters.hpp"
 #include "otfp/reference.hpp"
+#include "otfp/run_record.hpp"
+#include "otfp/series_layout.hpp"
 
 #include "bindings.hpp"
 
@@ -184,6 +189,94 @@ void bind_references(py::module_& m) {
           return std::make_unique<PyReference>(make_reference(name, setup));
         },
         py::arg("name"), py::arg("setup"), "crank_sphere, crank_slab, free_space or cosine_mode (reference_names()).");
+  m.def(
+      "complete_reference_geometry",
+      [](const std::string& name, const PyDomain& domain, const std::vector<int>& dirichlet_patches,
+         ReferenceSetup setup) {
+        if (!domain) throw InvalidArgument("domain: required");
+        complete_reference_geometry(name, *domain, dirichlet_patches, setup);
+        return setup;
+      },
+      py::arg("name"), py::arg("domain"), py::arg("dirichlet_patches"), py::arg("setup"),
+      "The setup with the Crank references' radius, slab depth and J_inf filled from the domain (a copy).");
+
+  // ---- the rows of series.csv (run_record.hpp, series_layout.hpp)
+  py::class_<StepRecord>(m, "StepRecord", "One row of series.csv and timing.csv (RunRecorder.record).")
+      .def_readonly("step", &StepRecord::step)
+      .def_readonly("t", &StepRecord::t)
+      .def_readonly("reference_values", &StepRecord::reference_values)
+      .def(
+          "as_dict",
+          [](const StepRecord& r) {
+            py::dict d;
+            for (const std::vector<SeriesColumn>* table : {&series_columns(), &timing_columns()})
+              for (const SeriesColumn& c : *table) switch (c.kind) {
+                  case ColumnKind::Integer: d[c.name] = r.*(c.integer); break;
+                  case ColumnKind::Number: d[c.name] = r.*(c.number); break;
+                  case ColumnKind::OptionalNumber: d[c.name] = py::cast(r.*(c.optional)); break;
+                }
+            return d;
+          },
+          "Every column of series.csv and timing.csv by name (absent values None); the reference's are "
+          "reference_values.");
+  py::class_<RecorderOptions>(m, "RecorderOptions", "What the rows are measured against.")
+      .def(py::init<>())
+      .def_readwrite("center", &RecorderOptions::center, "centre of the polar inertia (44)")
+      .def_readwrite("M_inf", &RecorderOptions::M_inf, "mass_ratio = mass_inside / M_inf")
+      .def_readwrite("J_inf", &RecorderOptions::J_inf, "polar_inertia_ratio = polar_inertia / J_inf (None: no column)")
+      .def("validate", &RecorderOptions::validate);
+  // The recorder reads the simulation and feeds the reference: each call
+  // holds the three locks (the recorder's, then the simulation's, then the
+  // reference's), so rows from several threads take turns.
+  struct PyRecorder {
+    PySimulation* sim = nullptr;
+    PyReference* reference = nullptr;
+    std::unique_ptr<RunRecorder> object;
+    ObjectLock lock;
+  };
+  py::class_<PyRecorder>(m, "RunRecorder",
+                         "The rows otfp run writes, from a Simulation after each step (SeriesLayout writes them).")
+      .def(py::init([](PySimulation& sim, const RecorderOptions& options, PyReference* reference) {
+             auto r = std::make_unique<PyRecorder>();
+             r->sim = &sim;
+             r->reference = reference;
+             r->object = std::make_unique<RunRecorder>(*sim.object, options, reference ? reference->object.get() : nullptr);
+             return r;
+           }),
+           py::arg("simulation"), py::arg("options"), py::arg("reference") = nullptr, py::keep_alive<1, 2>(),
+           py::keep_alive<1, 4>())
+      .def(
+          "record",
+          [](PyRecorder& r, std::int64_t step, double t, const StepSummary* summary, std::int64_t inserted,
+             std::int64_t removed) {
+            auto own = r.lock.hold();
+            auto sim = r.sim->lock.hold();
+            std::unique_lock<std::recursive_mutex> ref;
+            if (r.reference) ref = r.reference->lock.hold();
+            return (*r.object)(step, t, summary, inserted, removed);
+          },
+          py::arg("step"), py::arg("t"), py::arg("summary") = nullptr, py::arg("inserted") = 0, py::arg("removed") = 0,
+          "The row of step `step` ending at t (rows in time order; summary: the step's diffusion, None for row 0).")
+      .def_property(
+          "step_dt", [](PyRecorder& r) { return r.object->step_dt; },
+          [](PyRecorder& r, double dt) {
+            auto own = r.lock.hold();
+            r.object->step_dt = dt;
+          },
+          "the step being taken (fixed: the grid's dt; adaptive: its own length)")
+      .def_property(
+          "step_rejections", [](PyRecorder& r) { return r.object->step_rejections; },
+          [](PyRecorder& r, std::int64_t n) {
+            auto own = r.lock.hold();
+            r.object->step_rejections = n;
+          },
+          "adaptive: tries rejected before the step being recorded");
+  py::class_<SeriesLayout>(m, "SeriesLayout", "The columns of one run's series.csv: its header and rows.")
+      .def(py::init<bool, bool, std::vector<std::string>>(), py::arg("has_j_inf"), py::arg("has_mass_blob_error"),
+           py::arg("reference_columns") = std::vector<std::string>{})
+      .def_static("timing", &SeriesLayout::timing, "timing.csv's columns")
+      .def_property_readonly("header", &SeriesLayout::header)
+      .def("row", &SeriesLayout::row, py::arg("record"), "the CSV line of a StepRecord (RuntimeError if a value is not finite: nothing non-finite is written)");
 }
 
 }  // namespace otfp::python

@@ -248,3 +248,39 @@ def test_quiet_reservoir_is_the_default_and_exact_is_one_field_away():
     exact = otfp.Simulation(ball, data, opts)
     exact.start(otfp.ParticleSet(3), 0.0)
     assert len(exact.particles) > 0
+
+
+def test_library_rows_are_the_command_line_series(tmp_path):
+    """series.csv from library calls: the configuration's Simulation, the Crank reference from
+    the domain's geometry, a RunRecorder after each step and SeriesLayout's rows give the text
+    `otfp run` writes."""
+    overrides = ["particles.n_inf=150", "run.t_end=0.25"]
+    cli = otfp.load_config(otfp.example_config("sphere_dirichlet.toml"), overrides)
+    assert cli.run(tmp_path / "out")["status"] == "completed"
+    written = (tmp_path / "out" / "series.csv").read_text()
+
+    run = otfp.load_config(otfp.example_config("sphere_dirichlet.toml"), overrides)
+    d = run.description["derived"]
+    sim = run.make_simulation()
+    setup = otfp.ReferenceSetup()
+    setup.center = d["center"]
+    setup.M_inf = d["M_inf"]
+    setup.t_end = 0.25
+    setup.constant_dt = d["dt"]
+    setup = otfp.complete_reference_geometry("crank_sphere", run.domain, [0], setup)
+    reference = otfp.make_reference("crank_sphere", setup)
+    options = otfp.RecorderOptions()
+    options.center = d["center"]
+    options.M_inf = d["M_inf"]
+    options.J_inf = d["M_inf"] * run.domain.mean_square_distance(d["center"])
+    assert options.J_inf == d["J_inf"]
+    rows = otfp.RunRecorder(sim, options, reference)
+    rows.step_dt = d["dt"]
+    layout = otfp.SeriesLayout(True, reference.has_mass_blob_error, reference.columns)
+    first = sim.initial_step
+    text = layout.header + layout.row(rows.record(0, 0.0, None, first.inserted, first.removed))
+    for k in range(1, d["n_steps"] + 1):
+        step = sim.advance_to(k * d["dt"])
+        text += layout.row(rows.record(k, step.t_end, step.diffusion, step.inserted, step.removed))
+    assert text == written
+    assert rows.record(d["n_steps"], 0.25).as_dict()["mass_ratio"] > 0.0
