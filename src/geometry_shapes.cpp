@@ -86,7 +86,7 @@ class Ball final : public Domain {
   Vec3 inertia_center() const override { return c_; }
   // d / (d + 2) R^2 about the centre (a ball's second moment), plus the offset.
   double mean_square_distance(const Vec3& c) const override {
-    return dim_ / (dim_ + 2.0) * r_ * r_ + (c_ - c).squaredNorm();
+    return dim_ / (dim_ + 2.0) * r_ * r_ + (c_ - project(c, dim_)).squaredNorm();
   }
 
   std::optional<DomainShape> shape() const override {

@@ -24,6 +24,12 @@ RunRecorder::RunRecorder(const Simulation& sim, const RecorderOptions& options, 
   }
 }
 
+void RunRecorder::set_initial(const ParticleSet& particles) {
+  sums.n0 = static_cast<std::int64_t>(particles.size());
+  sums.M0 = particles.total_mass();
+  initial_set_ = true;
+}
+
 StepRecord RunRecorder::operator()(std::int64_t step, double t, const StepSummary* sum, std::int64_t ins,
                                    std::int64_t rem) {
   StepRecord r;
@@ -63,6 +69,11 @@ StepRecord RunRecorder::operator()(std::int64_t step, double t, const StepSummar
     r.step_seconds = sum->wall_seconds;
     r.solver_seconds = sum->solver_seconds;
     r.list_seconds = sum->list_seconds;
+  }
+  if (step == 0 && !initial_set_) {
+    sums.n0 = ms.n_particles;
+    sums.M0 = ms.mass_total;
+    initial_set_ = true;
   }
   // (46a)-(46b) as printed: sum over k = 0..K of the value at t_k times dt, all particles.
   if (step == 0)

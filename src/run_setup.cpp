@@ -43,14 +43,10 @@ TreatmentOptions treatment_preset(TreatmentPreset preset, int dim) {
 }
 
 void InitialFillRule::validate() const {
-  require(count >= 0, "fill.count", static_cast<double>(count), "must be >= 0 (0: from fill.mass, else n_inf)");
-  require(std::isfinite(mass) && mass >= 0.0, "fill.mass", mass, "must be finite and >= 0 (0: not given)");
+  if (count) require(*count >= 0, "fill.count", static_cast<double>(*count), "must be >= 0");
+  if (mass) require(std::isfinite(*mass) && *mass >= 0.0, "fill.mass", *mass, "must be finite and >= 0");
   require(given_count >= -1, "fill.given_count", static_cast<double>(given_count), "must be >= 0, or -1 for none");
   require(std::isfinite(given_mass) && given_mass >= 0.0, "fill.given_mass", given_mass, "must be finite and >= 0");
-  if (lattice)
-    for (int k = 0; k < 3; ++k)
-      require(std::isfinite(lattice_lo[k]) && std::isfinite(lattice_hi[k]) && lattice_lo[k] <= lattice_hi[k],
-              "fill.lattice_hi", lattice_hi[k], "must be finite and >= fill.lattice_lo on every axis");
 }
 
 void RunSetupOptions::validate() const {
@@ -145,10 +141,10 @@ RunParameters run_parameters(const Domain& domain, const std::vector<ConstantBou
     set_mass(MassRule::Dirichlet, ga / area * p.volume);
   } else if (f.given_count >= 0) {
     set_mass(MassRule::GivenParticles, f.given_mass + p.neumann_net_inflow);
-  } else if (f.filled && f.mass > 0.0) {
-    set_mass(MassRule::FillMass, f.mass + p.neumann_net_inflow);
+  } else if (f.filled && f.mass) {
+    set_mass(MassRule::FillMass, *f.mass + p.neumann_net_inflow);
   } else if (o.particle_mass > 0.0) {
-    const double n0 = f.filled ? static_cast<double>(f.count > 0 ? f.count : o.n_inf) : 0.0;
+    const double n0 = f.filled ? static_cast<double>(f.count.value_or(o.n_inf)) : 0.0;
     set_mass(MassRule::ParticleMass, n0 * o.particle_mass + p.neumann_net_inflow);
     if (!(p.M_inf > 0.0)) set_mass(MassRule::NInfParticleMass, static_cast<double>(o.n_inf) * o.particle_mass);
   } else if (!f.filled && p.neumann_net_inflow > 0.0) {
@@ -162,6 +158,9 @@ RunParameters run_parameters(const Domain& domain, const std::vector<ConstantBou
   // The fill's count: a lattice of spacing ~dr, the given particles, or the
   // fill's own count, mass or n_inf.
   if (f.lattice) {
+    for (int k = 0; k < dim; ++k)
+      require(std::isfinite(f.lattice_lo[k]) && std::isfinite(f.lattice_hi[k]) && f.lattice_lo[k] <= f.lattice_hi[k],
+              "fill.lattice_hi", f.lattice_hi[k], "must be finite and >= fill.lattice_lo on every used axis");
     double total = 1.0;  // in double first: an extreme box must not overflow the count
     for (int k = 0; k < dim; ++k) total *= std::max(1.0, std::round((f.lattice_hi[k] - f.lattice_lo[k]) / p.dr));
     require(total <= 1e8, "fill.lattice", total, "lattice points: at most 1e8");
@@ -174,13 +173,16 @@ RunParameters run_parameters(const Domain& domain, const std::vector<ConstantBou
   } else if (f.given_count >= 0) {
     p.fill_count = f.given_count;
   } else if (f.filled) {
-    if (f.count > 0) {
-      p.fill_count = f.count;
-    } else if (f.mass > 0.0) {
-      const double n = f.mass / p.particle_mass;
-      require(p.particle_mass > 0.0 && n <= 1e18, "fill.mass", f.mass,
-              "gives " + shown(n) + " particles of mass m_p = " + shown(p.particle_mass) + " (more than 1e18)");
-      p.fill_count = std::llround(n);
+    if (f.count) {
+      p.fill_count = *f.count;
+    } else if (f.mass) {
+      // Without a particle mass there is no count (setup_run refuses m_p = 0).
+      if (p.particle_mass > 0.0) {
+        const double n = *f.mass / p.particle_mass;
+        require(n <= 1e18, "fill.mass", *f.mass,
+                "gives " + shown(n) + " particles of mass m_p = " + shown(p.particle_mass) + " (more than 1e18)");
+        p.fill_count = std::llround(n);
+      }
     } else {
       p.fill_count = o.n_inf;
     }

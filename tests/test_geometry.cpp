@@ -668,8 +668,10 @@ namespace {
 // sample_interior() with its own seed, against each domain's closed form.
 double sampled_mean_square(const Domain& d, const Vec3& c, int samples) {
   Rng rng(20261202);
+  Vec3 cc = c;  // in d < 3 the unused axes do not count
+  for (int k = d.dim(); k < 3; ++k) cc[k] = 0.0;
   double s2 = 0.0;
-  for (int i = 0; i < samples; ++i) s2 += (d.sample_interior(rng) - c).squaredNorm();
+  for (int i = 0; i < samples; ++i) s2 += (d.sample_interior(rng) - cc).squaredNorm();
   return s2 / samples;
 }
 

@@ -123,6 +123,17 @@ TEST(RunSetup, MassAndFillRulesApplyInOrder) {
   EXPECT_NEAR(p.M_inf, 300 * 0.01 + inflow, 1e-14);
   EXPECT_EQ(p.particle_mass, 0.01);
   EXPECT_EQ(p.fill_count, 300);
+  // A count of 0 is no particles, not "not given"; so is a fill mass of 0.
+  o.fill.count = 0;
+  p = run_parameters(*box, neumann, o);
+  EXPECT_EQ(p.M_inf_rule, MassRule::ParticleMass);
+  EXPECT_NEAR(p.M_inf, inflow, 1e-15);
+  EXPECT_EQ(p.fill_count, 0);
+  o.fill.count.reset();
+  o.fill.mass = 0.0;
+  p = run_parameters(*box, neumann, o);
+  EXPECT_EQ(p.M_inf_rule, MassRule::FillMass);
+  EXPECT_EQ(p.fill_count, 0);
   // An outflow only, no fill: n_inf x m_p.
   o.fill = InitialFillRule{};
   p = run_parameters(*box, {outlet}, o);

@@ -65,7 +65,8 @@ class Domain {
   // the primitive (a ball's centre, a box's, a cylinder's mid-axis; a pipe's
   // box centre whatever its obstacle). Default: the bounding box's centre.
   virtual Vec3 inertia_center() const;
-  // Mean of |x - c|^2 over Omega at uniform density: M_inf times it is the
+  // Mean of |x - c|^2 over Omega at uniform density (c's unused axes do not
+  // count): M_inf times it is the
   // steady polar inertia J_inf about c. Closed forms for the primitives
   // (free space and periodic boxes: their box); default: fixed-seed Monte
   // Carlo over sample_interior() (2e5 points, the same value every call).

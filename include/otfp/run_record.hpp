@@ -6,10 +6,14 @@
 // SeriesLayout writes the records as CSV rows. A C++ or Python caller gets
 // the command line's series.csv from an observer:
 //
-//   otfp::RunRecorder rows(sim, {center, M_inf, J_inf}, reference.get());
-//   const otfp::SeriesLayout layout(J_inf.has_value(), reference && reference->has_mass_blob_error(),
+//   otfp::RunRecorder rows(sim, options, reference.get());  // center, M_inf, J_inf
+//   rows.step_dt = dt;                 // the grid's step: (46) sums with it from row 0
+//   rows.set_initial(fill);            // the particles given to sim.start(fill)
+//   sim.start(fill);
+//   const otfp::SeriesLayout layout(options.J_inf.has_value(), reference && reference->has_mass_blob_error(),
 //                                   reference ? reference->columns() : std::vector<std::string>{});
-//   out << layout.header() << layout.row(rows(0, 0.0, nullptr, 0, 0));
+//   const otfp::SimulationStep& s0 = sim.initial_step();
+//   out << layout.header() << layout.row(rows(0, 0.0, nullptr, s0.inserted, s0.removed));
 //   otfp::Observer observer;
 //   observer.row = [&](const otfp::SimulationStep& s, bool) {
 //     rows.step_dt = s.dt();
@@ -92,6 +96,10 @@ class RunRecorder {
                         std::int64_t removed);
   // Each particle's region of the last row (0 inside, 1 buffer, 2 outside).
   const std::vector<std::int32_t>& region() const { return region_; }
+  // The initial particles (before Simulation::start adds a reservoir band):
+  // their count and mass are sums.n0 and sums.M0 (the free-space reference's
+  // growth 2 d kappa M t uses M0). Without it, row 0 takes the whole state's.
+  void set_initial(const ParticleSet& particles);
 
   RunSums sums;
   // The step being taken (fixed: the grid's dt, as (46) is summed; adaptive:
@@ -105,6 +113,7 @@ class RunRecorder {
   Reference* reference_;
   std::function<double()> wall_;
   std::vector<std::int32_t> region_;
+  bool initial_set_ = false;
 };
 
 }  // namespace otfp

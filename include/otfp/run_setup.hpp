@@ -16,6 +16,7 @@
 // Every default here is the CLI's: its configuration table reads these structs.
 #include <array>
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 #include "otfp/enums.hpp"
@@ -57,11 +58,11 @@ struct InitialFillRule {
   bool lattice = false;             // a cell-centred lattice over [lattice_lo, lattice_hi]: round(edge / dr) per axis
   Vec3 lattice_lo = Vec3::Zero();   // the lattice's box
   Vec3 lattice_hi = Vec3::Zero();
-  std::int64_t count = 0;           // particles of a drawn fill; 0: mass / m_p if mass is given, else n_inf
-  double mass = 0.0;                // total mass of a drawn fill; 0: not given
+  std::optional<std::int64_t> count;  // particles of a drawn fill (>= 0); absent: mass / m_p if mass is given, else n_inf
+  std::optional<double> mass;         // total mass of a drawn fill (>= 0); absent: not given
   std::int64_t given_count = -1;    // particles given as such (read from a file): how many; -1: none
   double given_mass = 0.0;          // and their total mass
-  void validate() const;            // throws InvalidArgument naming the field (as fill.<field>)
+  void validate() const;            // throws InvalidArgument naming the field (as fill.<field>); the lattice's box is checked by run_parameters on the used axes
 };
 
 // Which rule set M_inf (the first that applies, in this order).
@@ -70,7 +71,7 @@ enum class MassRule {
   Dirichlet,      // area-weighted mean Dirichlet g x |Omega|
   GivenParticles, // the given particles' mass + the net Neumann inflow over [0, t_end]
   FillMass,       // fill.mass + the net Neumann inflow
-  ParticleMass,   // (fill.count or n_inf; 0 without a drawn fill) x particle_mass + the net Neumann inflow
+  ParticleMass,   // (fill.count, else n_inf; 0 without a drawn fill) x particle_mass + the net Neumann inflow
   NInfParticleMass,  // n_inf x particle_mass, where the rule above gives <= 0
   NeumannInflow,  // no particles at t = 0: the net Neumann inflow (> 0)
   Unset           // none applies: M_inf and particle_mass stay 0
@@ -125,8 +126,10 @@ struct RunParameters {
 
 // (36)-(40), the step, the band, the masses and the fill's count for
 // `boundary` on `domain`. Throws InvalidArgument naming the RunSetupOptions
-// field at fault; an M_inf that no rule sets is left 0 (setup_run() refuses
-// it; the CLI then takes M_inf = 1).
+// field at fault. An M_inf that no rule sets (or that is not finite and > 0)
+// leaves particle_mass 0 unless it is given, and a fill given by its mass
+// then has no count (fill_count 0): setup_run() refuses a particle mass of
+// 0; the CLI takes M_inf = 1 where no rule applies.
 RunParameters run_parameters(const Domain& domain, const std::vector<ConstantBoundaryData>& boundary,
                              const RunSetupOptions& options);
 

@@ -249,14 +249,24 @@ void bind_references(py::module_& m) {
           "record",
           [](PyRecorder& r, std::int64_t step, double t, const StepSummary* summary, std::int64_t inserted,
              std::int64_t removed) {
-            auto own = r.lock.hold();
+            // The simulation's lock first, as its run_until holds it while an
+            // observer records: then the recorder's, then the reference's.
             auto sim = r.sim->lock.hold();
+            auto own = r.lock.hold();
             std::unique_lock<std::recursive_mutex> ref;
             if (r.reference) ref = r.reference->lock.hold();
             return (*r.object)(step, t, summary, inserted, removed);
           },
           py::arg("step"), py::arg("t"), py::arg("summary") = nullptr, py::arg("inserted") = 0, py::arg("removed") = 0,
           "The row of step `step` ending at t (rows in time order; summary: the step's diffusion, None for row 0).")
+      .def(
+          "set_initial",
+          [](PyRecorder& r, const ParticleSet& particles) {
+            auto own = r.lock.hold();
+            r.object->set_initial(particles);
+          },
+          py::arg("particles"),
+          "The particles given to Simulation.start (their count and mass; default: row 0's whole state).")
       .def_property(
           "step_dt", [](PyRecorder& r) { return r.object->step_dt; },
           [](PyRecorder& r, double dt) {

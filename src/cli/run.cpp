@@ -100,9 +100,8 @@ void on_every_rank(const otfp::Simulation& sim, Write&& write) {
 // count and mass for the summary, every particle on rank 0 of a distributed
 // run (start() hands them out), and the reservoir (if any) filled before the
 // first step, counted as step 0's insertions.
-void start_fresh(otfp::Simulation& sim, ParticleSet fill, Rng& rng, RunSums& sums) {
-  sums.n0 = static_cast<std::int64_t>(fill.size());
-  sums.M0 = fill.total_mass();
+void start_fresh(otfp::Simulation& sim, ParticleSet fill, Rng& rng, RunRecorder& rows) {
+  rows.set_initial(fill);
   if (!sim.root_process()) {
     const ParticleId next = fill.next_id();
     fill = ParticleSet(fill.dim());
@@ -156,7 +155,7 @@ RunResult ConfiguredRun::run(const RunOptions& options) {
     if (!options.resume) {
       ParticleSet fill = initial_particles(rng);
       on_every_rank(sim, [&] { files.create(layout.header(), timing.header()); });
-      start_fresh(sim, std::move(fill), rng, rows.sums);
+      start_fresh(sim, std::move(fill), rng, rows);
       emit(rows(0, 0.0, nullptr, sim.initial_step().inserted, sim.initial_step().removed), false);
     } else {
       ResumeStart start;

@@ -3,6 +3,8 @@
 // naming configuration keys.
 #include "setup_keys.hpp"
 
+#include <fmt/format.h>
+
 #include <cctype>
 #include <string>
 #include <utility>
@@ -52,8 +54,8 @@ RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded
   f.lattice = pa.fill_arrangement == Arrangement::Lattice;
   f.lattice_lo = c.domain.lo;
   f.lattice_hi = c.domain.hi;
-  f.count = pa.fill_count.value_or(0);
-  f.mass = pa.fill_mass.value_or(0.0);
+  f.count = pa.fill_count;
+  f.mass = pa.fill_mass;
   o.bounded = bounded;
   o.stepper = c.solver.stepper;
   const TreatmentSection& tr = c.treatment;
@@ -101,13 +103,16 @@ RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded
       {"particle_mass", "particles.mass"},
       {"fill.count", "particles.fill_count"},
       {"fill.mass", "particles.fill_mass"},
+      {"fill.given_count", "particles.fill_file"},
+      {"fill.given_mass", "particles.fill_file"},
+      {"fill.lattice_hi", "domain.hi"},
   };
   const std::string what = e.what();
   const std::string lattice = "fill.lattice = ";
   if (what.rfind(lattice, 0) == 0)  // the lattice's size, not a value of the key
     throw ConfigError("particles.fill_arrangement", "\"lattice\"",
-                      "gives " + what.substr(lattice.size(), what.find(':') - lattice.size()) +
-                          " lattice points (at most 1e8)");
+                      fmt::format("gives {:.3g} lattice points (at most 1e8)",
+                                  std::stod(what.substr(lattice.size(), what.find(':') - lattice.size()))));
   for (const auto& [field, key] : keys)
     if (what.rfind(field + " = ", 0) == 0) {
       // The rule may name other fields: those of the step and the barrier by their keys as well.

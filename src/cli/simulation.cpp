@@ -360,6 +360,9 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   } else if (!free_space_) {
     d.J_inf = d.M_inf * domain_->mean_square_distance(d.center);
     d.J_inf_rule = "uniform density M_inf/|Omega| about diagnostics.center";
+    if (!std::isfinite(*d.J_inf))
+      throw ConfigError("diagnostics.center", fmt::format("[{}, {}, {}]", d.center[0], d.center[1], d.center[2]),
+                        "gives a polar inertia J_inf that is not finite: set diagnostics.J_inf or a nearer centre");
   }
   const std::string& ref = c.diagnostics.reference;
   ReferenceSetup rs;
