@@ -2,6 +2,7 @@
 // docs/distributed.md, "Figures"). Run under mpiexec, one thread per rank:
 //
 //   OMP_NUM_THREADS=1 mpiexec -n 2 build/bench/otfp_bench_distributed [n] [dim] [dt_factor] [slabs|bisection]
+//                                                                      [lbfgs_memory]
 //
 // Every rank draws the same cloud (n particles uniform in the unit ball,
 // widths of the papers' rule at beta dr^2 = 2), keeps its slab (equal counts
@@ -45,6 +46,7 @@ int main(int argc, char** argv) {
   const int dim = argc > 2 ? std::stoi(argv[2]) : 3;
   const double dt_factor = argc > 3 ? std::stod(argv[3]) : 1.0;
   const bool bisection = argc > 4 && std::string(argv[4]) == "bisection";
+  const int lbfgs_memory = argc > 5 ? std::stoi(argv[5]) : MinimizerOptions{}.lbfgs_memory;  // TAO LMVM's history
   const int rank = world_rank(), size = world_size();
 
   DomainPtr ball = make_ball(dim, Vec3::Zero(), 1.0);
@@ -92,6 +94,7 @@ int main(int argc, char** argv) {
 
   ImplicitOptions io;
   io.minimizer.backend = Backend::Tao;
+  io.minimizer.lbfgs_memory = lbfgs_memory;
   io.rho_ref = fo.rho_ref;
   DistributedImplicitStepper stepper(dim, io, Barrier(ball, pp.barrier_C));
   MPI_Barrier(MPI_COMM_WORLD);
@@ -116,8 +119,8 @@ int main(int argc, char** argv) {
   MPI_Barrier(MPI_COMM_WORLD);
   if (rank == 0)
     std::printf("%s: n = %zu, %d-D, %d rank(s): F and gradient %.1f ms per evaluation (exchange and sums %.2f ms); "
-                "one step at %.3g x dt_explicit: %s, %d evaluations, %.3f s\n",
-                bisection ? "bisection" : "slabs", n, dim, size, 1e3 * per_eval, 1e3 * exchange, dt_factor, step.accepted ? "accepted" : "rejected",
-                step.evaluations, step_seconds);
+                "one step at %.3g x dt_explicit (L-BFGS memory %d): %s, %d evaluations, %.3f s\n",
+                bisection ? "bisection" : "slabs", n, dim, size, 1e3 * per_eval, 1e3 * exchange, dt_factor, lbfgs_memory,
+                step.accepted ? "accepted" : "rejected", step.evaluations, step_seconds);
   return step.accepted ? 0 : 1;
 }
