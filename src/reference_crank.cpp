@@ -101,6 +101,10 @@ class CrankReference : public Reference {
 
 void complete_reference_geometry(const std::string& name, const Domain& domain,
                                  const std::vector<int>& dirichlet_patches, ReferenceSetup& setup) {
+  // The set-up's dim decides the 3-D polar inertia and which faces a slab may
+  // hold: a default (3) left on a 2-D domain would give the wrong ones.
+  require(setup.dim == domain.dim(), "reference dim", setup.dim,
+          "must be the domain's dimension (" + std::to_string(domain.dim()) + ")");
   const std::optional<DomainShape> shape = domain.shape();
   if (name == "crank_sphere") {
     if (!shape || shape->kind != DomainShape::Kind::Ball) return;

@@ -65,7 +65,7 @@ void RunSetupOptions::validate() const {
   require(std::isfinite(barrier_stiffness) && barrier_stiffness >= 0.0, "barrier_stiffness", barrier_stiffness,
           "must be finite and >= 0 (0: barrier_factor / dt_explicit)");
   require(kernel_tolerance > 0.0 && kernel_tolerance < 1.0, "kernel_tolerance", kernel_tolerance, "must be in (0, 1)");
-  require(std::isfinite(M_inf) && M_inf >= 0.0, "M_inf", M_inf, "must be finite and >= 0 (0: from the Dirichlet data)");
+  require(std::isfinite(M_inf) && M_inf >= 0.0, "M_inf", M_inf, "must be finite and >= 0 (0: set by the first mass rule that applies, MassRule)");
   require(std::isfinite(particle_mass) && particle_mass >= 0.0, "particle_mass", particle_mass,
           "must be finite and >= 0 (0: M_inf / n_inf)");
   treatment.validate();
@@ -235,7 +235,7 @@ RunSetup setup_run(const Domain& domain, const std::vector<ConstantBoundaryData>
   RunSetup s;
   s.parameters = run_parameters(domain, boundary, options);
   require(s.parameters.particle_mass > 0.0, "particle_mass", s.parameters.particle_mass,
-          "give particle_mass or M_inf (no Dirichlet data > 0 sets M_inf here)");
+          "give particle_mass or M_inf (no mass rule sets M_inf here: no Dirichlet data > 0, given particles, fill mass or Neumann inflow)");
   s.options = simulation_options(s.parameters, options);
   return s;
 }

@@ -146,6 +146,11 @@ std::string SeriesLayout::row(const StepRecord& r) const {
   }
   // The reference's columns (none in timing.csv); a row of a run with a
   // reference holds one value per column.
+  if (!reference_columns_.empty() && r.reference_values.size() != reference_columns_.size())
+    throw std::invalid_argument(fmt::format("SeriesLayout::row: step {} has {} reference values for the {} reference "
+                                            "columns ({} ...): record the rows with the layout's reference",
+                                            r.step, r.reference_values.size(), reference_columns_.size(),
+                                            reference_columns_.front()));
   for (std::size_t i = 0; i < reference_columns_.size(); ++i) num(r.reference_values.at(i), reference_columns_[i].c_str());
   line.back() = '\n';
   return line;

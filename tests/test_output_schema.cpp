@@ -117,6 +117,16 @@ TEST(OutputSchema, HeaderRowsAndFinalFollowTheTable) {
   EXPECT_EQ(fields(row), fields(full.header()));
   EXPECT_EQ(row.rfind("7,0.5,0,12,", 0), 0u);
   EXPECT_NE(row.find(",0,0,0.25,0,0,-0.125,1.5,2.5\n"), std::string::npos) << row;
+  // A record without the layout's reference values is refused, naming them.
+  r.reference_values = {1.5};
+  try {
+    (void)full.row(r);
+    ADD_FAILURE() << "a row with 1 value for 2 reference columns was written";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("1 reference values for the 2 reference columns (reference_mass_ratio"),
+              std::string::npos)
+        << e.what();
+  }
   // No estimate: an empty field.
   r.reference_values.clear();
   EXPECT_NE(plain.row(r).find(",0,0,,0,"), std::string::npos) << plain.row(r);

@@ -549,4 +549,9 @@ TEST(ReferenceObjects, CrankGeometryFromTheDomain) {
   EXPECT_EQ(two.length, 0.0);
   EXPECT_EQ(two.slab_axis, -1);
   EXPECT_FALSE(two.J_inf.has_value());
+  // The set-up's dim left at its default (3) on the 2-D box: refused, not a
+  // 3-D answer (face 4 would pass as a face and give a slab of depth 0).
+  otfp::ReferenceSetup unset;
+  EXPECT_THROW(otfp::complete_reference_geometry("crank_slab", *box, {4}, unset), otfp::InvalidArgument);
+  EXPECT_EQ(unset.length, 0.0);
 }

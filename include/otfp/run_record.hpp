@@ -16,7 +16,7 @@
 //   out << layout.header() << layout.row(rows(0, 0.0, nullptr, s0.inserted, s0.removed));
 //   otfp::Observer observer;
 //   observer.row = [&](const otfp::SimulationStep& s, bool) {
-//     rows.step_dt = s.dt();
+//     rows.step_dt = adaptive ? s.dt() : sim.time_grid().dt;  // a fixed grid's dt, not t_k - t_{k-1}
 //     out << layout.row(rows(s.step, s.t_end, &s.diffusion, s.inserted, s.removed));
 //   };
 #include <cstdint>
