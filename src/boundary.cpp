@@ -24,20 +24,6 @@ using detail::kQuadratureSeed;
 using detail::kSurfaceSeed;
 using detail::mean_of;
 
-namespace {
-
-// Same rule as Domain::in_layer_cell, applied to a query already made.
-bool in_part(double sd, double b, LayerPart part) {
-  switch (part) {
-    case LayerPart::Interior: return sd >= -b && sd <= 0.0;
-    case LayerPart::Exterior: return sd > 0.0 && sd <= b;
-    case LayerPart::Whole: return std::abs(sd) <= b;
-  }
-  return false;
-}
-
-}  // namespace
-
 void ProjectionOptions::validate(bool require_reservoir_domain) const {
   require(std::isfinite(layer_b) && layer_b > 0.0, "boundary.layer_b", layer_b, "must be finite and > 0");
   require(quadrature_samples >= 1000, "boundary.quadrature_samples", quadrature_samples, "must be >= 1000");
@@ -303,7 +289,7 @@ PatchLedger BoundaryProjection::apply(ParticleSet& particles, double t, double d
       }
       // Dirichlet acts on B_l^int, Neumann on the whole B_l (Algorithm 1, lines 8 and 18-20).
       const LayerPart part = conditions_[i].kind == PatchKind::Dirichlet ? LayerPart::Interior : LayerPart::Whole;
-      if (!in_part(q.signed_distance, b, part)) continue;
+      if (!in_layer_part(q.signed_distance, b, part)) continue;
       members[i].push_back(p);
       member_mass[i] += particles.masses()[p];
     }

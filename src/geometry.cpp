@@ -49,7 +49,10 @@ int Domain::patch_by_name(const std::string& name) const {
 bool Domain::in_layer_cell(const Vec3& x, int patch, double b, LayerPart part) const {
   const BoundaryQuery q = query(x);
   if (q.patch != patch || patch < 0) return false;
-  const double sd = q.signed_distance;
+  return in_layer_part(q.signed_distance, b, part);
+}
+
+bool in_layer_part(double sd, double b, LayerPart part) {
   switch (part) {
     case LayerPart::Interior: return sd >= -b && sd <= 0.0;
     case LayerPart::Exterior: return sd > 0.0 && sd <= b;

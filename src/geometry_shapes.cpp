@@ -17,6 +17,16 @@ using namespace geometry_detail;
 
 namespace {
 
+// A layer part's volume from its two halves' closed forms.
+double layer_part_volume(LayerPart part, double interior, double exterior) {
+  switch (part) {
+    case LayerPart::Interior: return interior;
+    case LayerPart::Exterior: return exterior;
+    case LayerPart::Whole: return interior + exterior;
+  }
+  return 0.0;
+}
+
 void check_dim(int dim) { require(dim >= 1 && dim <= 3, "dim", dim, "must be 1, 2 or 3"); }
 
 double unit_ball_volume(int dim) {
@@ -248,12 +258,7 @@ class Box final : public Domain {
       interior = side[0] * side[1] * t - (side[0] + side[1]) * t * t + 4.0 * t * t * t / 3.0;
       exterior = side[0] * side[1] * b + (side[0] + side[1]) * kPi * b * b / 4.0 + 2.0 * kPi * b * b * b / 9.0;
     }
-    switch (part) {
-      case LayerPart::Interior: return interior;
-      case LayerPart::Exterior: return exterior;
-      case LayerPart::Whole: return interior + exterior;
-    }
-    return 0.0;
+    return layer_part_volume(part, interior, exterior);
   }
 
  private:
@@ -406,12 +411,7 @@ class Cylinder final : public Domain {
       const double rim = 2.0 * kPi * (r * kPi * b * b / 8.0 + b * b * b * (1.0 - s2) / 3.0);
       exterior = kPi * r * r * b + rim;
     }
-    switch (part) {
-      case LayerPart::Interior: return interior;
-      case LayerPart::Exterior: return exterior;
-      case LayerPart::Whole: return interior + exterior;
-    }
-    return 0.0;
+    return layer_part_volume(part, interior, exterior);
   }
 
  private:

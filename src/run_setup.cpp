@@ -47,6 +47,18 @@ void InitialFillRule::validate() const {
   if (mass) require(std::isfinite(*mass) && *mass >= 0.0, "fill.mass", *mass, "must be finite and >= 0");
   require(given_count >= -1, "fill.given_count", static_cast<double>(given_count), "must be >= 0, or -1 for none");
   require(std::isfinite(given_mass) && given_mass >= 0.0, "fill.given_mass", given_mass, "must be finite and >= 0");
+  // One source of the count: a fill given both ways, or a count that no
+  // drawn fill uses, would only seem to have been applied.
+  require(!(count && mass), "fill.count", static_cast<double>(count.value_or(0)),
+          "give fill.count or fill.mass, not both");
+  const char* field = count ? "fill.count" : "fill.mass";
+  const double value = count ? static_cast<double>(*count) : mass.value_or(0.0);
+  require(!(lattice && (count || mass)), field, value,
+          "not used by fill.lattice (the lattice of spacing dr sets the count)");
+  require(filled || lattice || !(count || mass), field, value,
+          "has no effect: fill.filled is false (no particles are drawn)");
+  require(given_count < 0 || !(filled || lattice), "fill.given_count", static_cast<double>(given_count),
+          "given particles replace a drawn fill: fill.filled and fill.lattice must be false");
 }
 
 void RunSetupOptions::validate() const {
@@ -123,8 +135,24 @@ RunParameters run_parameters(const Domain& domain, const std::vector<ConstantBou
       p.neumann_net_inflow += -b.value * domain.patch_area(b.patch) *
                               std::max(0.0, std::min(o.t_end, b.t_end) - std::max(0.0, b.t_start));
 
-  // M_inf: the first rule that applies (MassRule).
+  // The lattice's count (spacing ~dr over its box), needed by the mass rules.
   const InitialFillRule& f = o.fill;
+  if (f.lattice) {
+    for (int k = 0; k < dim; ++k)
+      require(std::isfinite(f.lattice_lo[k]) && std::isfinite(f.lattice_hi[k]) && f.lattice_lo[k] <= f.lattice_hi[k],
+              "fill.lattice_hi", f.lattice_hi[k], "must be finite and >= fill.lattice_lo on every used axis");
+    double total = 1.0;  // in double first: an extreme box must not overflow the count
+    for (int k = 0; k < dim; ++k) total *= std::max(1.0, std::round((f.lattice_hi[k] - f.lattice_lo[k]) / p.dr));
+    require(total <= 1e8, "fill.lattice", total, "lattice points: at most 1e8");
+    p.fill_count = 1;
+    for (int k = 0; k < dim; ++k) {
+      p.lattice_counts[static_cast<std::size_t>(k)] =
+          std::max<std::int64_t>(1, std::llround((f.lattice_hi[k] - f.lattice_lo[k]) / p.dr));
+      p.fill_count *= p.lattice_counts[static_cast<std::size_t>(k)];
+    }
+  }
+
+  // M_inf: the first rule that applies (MassRule).
   double ga = 0.0, area = 0.0;
   for (const ConstantBoundaryData& b : boundary)
     if (b.kind == PatchKind::Dirichlet) {
@@ -144,10 +172,12 @@ RunParameters run_parameters(const Domain& domain, const std::vector<ConstantBou
   } else if (f.filled && f.mass) {
     set_mass(MassRule::FillMass, *f.mass + p.neumann_net_inflow);
   } else if (o.particle_mass > 0.0) {
-    const double n0 = f.filled ? static_cast<double>(f.count.value_or(o.n_inf)) : 0.0;
+    const double n0 = f.lattice  ? static_cast<double>(p.fill_count)
+                      : f.filled ? static_cast<double>(f.count.value_or(o.n_inf))
+                                 : 0.0;
     set_mass(MassRule::ParticleMass, n0 * o.particle_mass + p.neumann_net_inflow);
     if (!(p.M_inf > 0.0)) set_mass(MassRule::NInfParticleMass, static_cast<double>(o.n_inf) * o.particle_mass);
-  } else if (!f.filled && p.neumann_net_inflow > 0.0) {
+  } else if (!f.filled && !f.lattice && p.neumann_net_inflow > 0.0) {
     set_mass(MassRule::NeumannInflow, p.neumann_net_inflow);
   }
   if (o.particle_mass > 0.0)
@@ -155,21 +185,10 @@ RunParameters run_parameters(const Domain& domain, const std::vector<ConstantBou
   else if (p.M_inf > 0.0 && std::isfinite(p.M_inf))
     p.particle_mass = p.M_inf / static_cast<double>(n_inf);
 
-  // The fill's count: a lattice of spacing ~dr, the given particles, or the
-  // fill's own count, mass or n_inf.
+  // The other fills' counts: the given particles, or the fill's own count,
+  // mass or n_inf.
   if (f.lattice) {
-    for (int k = 0; k < dim; ++k)
-      require(std::isfinite(f.lattice_lo[k]) && std::isfinite(f.lattice_hi[k]) && f.lattice_lo[k] <= f.lattice_hi[k],
-              "fill.lattice_hi", f.lattice_hi[k], "must be finite and >= fill.lattice_lo on every used axis");
-    double total = 1.0;  // in double first: an extreme box must not overflow the count
-    for (int k = 0; k < dim; ++k) total *= std::max(1.0, std::round((f.lattice_hi[k] - f.lattice_lo[k]) / p.dr));
-    require(total <= 1e8, "fill.lattice", total, "lattice points: at most 1e8");
-    p.fill_count = 1;
-    for (int k = 0; k < dim; ++k) {
-      p.lattice_counts[static_cast<std::size_t>(k)] =
-          std::max<std::int64_t>(1, std::llround((f.lattice_hi[k] - f.lattice_lo[k]) / p.dr));
-      p.fill_count *= p.lattice_counts[static_cast<std::size_t>(k)];
-    }
+    // counted above
   } else if (f.given_count >= 0) {
     p.fill_count = f.given_count;
   } else if (f.filled) {

@@ -106,7 +106,8 @@ TEST(RunSetup, MassAndFillRulesApplyInOrder) {
   EXPECT_NEAR(p.M_inf, 2.5 + inflow, 1e-14);
   EXPECT_NEAR(p.particle_mass, (2.5 + inflow) / 800.0, 1e-16);
   EXPECT_EQ(p.fill_count, std::llround(2.5 / p.particle_mass));
-  // Given particles come before a fill's mass.
+  // Given particles (they replace a drawn fill).
+  o.fill = InitialFillRule{};
   o.fill.given_count = 123;
   o.fill.given_mass = 0.75;
   p = run_parameters(*box, neumann, o);
@@ -169,9 +170,40 @@ TEST(RunSetup, MassAndFillRulesApplyInOrder) {
   EXPECT_EQ(p.fill_count, p.lattice_counts[0] * p.lattice_counts[1]);
   o.fill.lattice_hi = Vec3(1e6, 2.0, 0.0);
   EXPECT_EQ(error_of([&] { run_parameters(*box, held, o); }).rfind("fill.lattice = ", 0), 0u);
+  // With a particle mass and no Dirichlet data, M_inf is the lattice's own
+  // count x m_p, not n_inf x m_p.
+  o.fill.lattice_hi = Vec3(1.0, 2.0, 0.0);
+  o.n_inf = 700;
+  o.particle_mass = 0.01;
+  p = run_parameters(*box, {}, o);
+  EXPECT_EQ(p.M_inf_rule, MassRule::ParticleMass);
+  EXPECT_EQ(p.fill_count, 19 * 37);  // round(1 / dr) x round(2 / dr), dr = sqrt(2 / 700): 703, not 700
+  EXPECT_NEAR(p.M_inf, static_cast<double>(p.fill_count) * 0.01, 1e-14);
   o.fill = InitialFillRule{};
   o.fill.count = -1;
   EXPECT_EQ(error_of([&] { run_parameters(*box, held, o); }).rfind("fill.count = -1: ", 0), 0u);
+}
+
+// A fill said two ways, or a count that nothing draws, is refused, not
+// silently ignored.
+TEST(RunSetup, ContradictoryFillsAreRefused) {
+  const DomainPtr box = make_box(2, Vec3::Zero(), Vec3(1.0, 2.0, 0.0));
+  RunSetupOptions o;
+  o.fill.filled = true;
+  o.fill.count = 10;
+  o.fill.mass = 2.0;
+  EXPECT_EQ(error_of([&] { run_parameters(*box, {}, o); }).rfind("fill.count = 10: give fill.count or fill.mass", 0), 0u);
+  o.fill.count.reset();
+  o.fill.lattice = true;
+  o.fill.lattice_hi = Vec3(1.0, 2.0, 0.0);
+  EXPECT_EQ(error_of([&] { run_parameters(*box, {}, o); }).rfind("fill.mass = 2: not used by fill.lattice", 0), 0u);
+  o.fill = InitialFillRule{};
+  o.fill.count = 10;
+  EXPECT_EQ(error_of([&] { run_parameters(*box, {}, o); }).rfind("fill.count = 10: has no effect", 0), 0u);
+  o.fill = InitialFillRule{};
+  o.fill.filled = true;
+  o.fill.given_count = 5;
+  EXPECT_EQ(error_of([&] { run_parameters(*box, {}, o); }).rfind("fill.given_count = 5: given particles replace", 0), 0u);
 }
 
 TEST(RunSetup, PresetsAreTheDocumentedTreatments) {

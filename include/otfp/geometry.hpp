@@ -28,6 +28,10 @@ struct BoundaryQuery {
 
 enum class LayerPart { Interior, Exterior, Whole };
 
+// Whether a signed distance sd lies in that part of a layer of depth b (the
+// sets above, without the patch).
+bool in_layer_part(double sd, double b, LayerPart part);
+
 // Parameters of the primitive domains (make_box, make_ball, make_cylinder), for
 // closed-form integrals over Omega (otfp/mass_measure.hpp). Sub-patch domains
 // report their base's shape; periodic boxes, CSG and other domains none.

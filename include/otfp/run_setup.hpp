@@ -62,7 +62,11 @@ struct InitialFillRule {
   std::optional<double> mass;         // total mass of a drawn fill (>= 0); absent: not given
   std::int64_t given_count = -1;    // particles given as such (read from a file): how many; -1: none
   double given_mass = 0.0;          // and their total mass
-  void validate() const;            // throws InvalidArgument naming the field (as fill.<field>); the lattice's box is checked by run_parameters on the used axes
+  // Throws InvalidArgument naming the field (as fill.<field>): count and mass
+  // exclude each other and need a drawn fill that is not a lattice; given
+  // particles exclude a drawn fill. The lattice's box is checked by
+  // run_parameters on the used axes.
+  void validate() const;
 };
 
 // Which rule set M_inf (the first that applies, in this order).
@@ -71,7 +75,7 @@ enum class MassRule {
   Dirichlet,      // area-weighted mean Dirichlet g x |Omega|
   GivenParticles, // the given particles' mass + the net Neumann inflow over [0, t_end]
   FillMass,       // fill.mass + the net Neumann inflow
-  ParticleMass,   // (fill.count, else n_inf; 0 without a drawn fill) x particle_mass + the net Neumann inflow
+  ParticleMass,   // (the lattice's count, else fill.count, else n_inf; 0 without a fill) x particle_mass + the net Neumann inflow
   NInfParticleMass,  // n_inf x particle_mass, where the rule above gives <= 0
   NeumannInflow,  // no particles at t = 0: the net Neumann inflow (> 0)
   Unset           // none applies: M_inf and particle_mass stay 0
