@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 
 #include "otfp/explicit_stepper.hpp"
+#include "step_objective.hpp"
 
 namespace otfp {
 
@@ -15,7 +16,7 @@ void ExplicitOptions::validate() const {
   neighbor.validate();
 }
 
-namespace {
+namespace detail {
 FunctionalOptions functional_options(const ExplicitOptions& o) {
   FunctionalOptions f;
   f.kappa = o.kappa;
@@ -23,12 +24,12 @@ FunctionalOptions functional_options(const ExplicitOptions& o) {
   f.neighbor = o.neighbor;
   return f;
 }
-}  // namespace
+}  // namespace detail
 
 ExplicitStepper::ExplicitStepper(int dim, ExplicitOptions options, Barrier barrier, Periodicity periodicity)
     : dim_(dim),
       options_((options.validate(), options)),
-      functional_(dim, functional_options(options), std::move(barrier), periodicity) {}
+      functional_(dim, detail::functional_options(options), std::move(barrier), periodicity) {}
 
 void ExplicitStepper::velocity(const std::vector<Vec3>& x, const std::vector<double>& s, std::vector<Vec3>& v) {
   if (options_.scheme == ExplicitScheme::EulerExactGradient) {

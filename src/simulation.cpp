@@ -141,11 +141,6 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
   validate_own_fields(options_);
   const int dim = domain_->dim();
   const SimulationOptions& o = options_;
-  if (distribution_) {
-    require(o.stepper == StepperKind::Implicit, "stepper", to_string(o.stepper),
-            "a distributed run steps implicitly: must be implicit");
-  }
-
   // Conditions, in the order of `boundary`.
   condition_of_patch_.assign(static_cast<std::size_t>(domain_->num_patches()), -1);
   buffer_.buffer_patch.assign(static_cast<std::size_t>(domain_->num_patches()), 0);
@@ -269,8 +264,10 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
   // The quiet reservoir places particles by the density the functional sees.
   if (!walls_.empty()) projection_->set_mirror_walls(walls_);
   try {
-    if (distribution_) {
+    if (distribution_ && o.stepper == StepperKind::Implicit) {
       distribution_->configure(dim, o.implicit, barrier, periodicity, walls_);
+    } else if (distribution_) {
+      distribution_->configure_explicit(dim, o.explicit_options, barrier, periodicity, walls_);
     } else if (o.stepper == StepperKind::Implicit) {
       implicit_ = std::make_unique<ImplicitStepper>(dim, o.implicit, barrier, periodicity);
       if (!walls_.empty()) implicit_->functional().set_images(WallImages(walls_));
@@ -284,6 +281,11 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
 }
 
 Simulation::~Simulation() = default;
+
+void RunDistribution::configure_explicit(int, const ExplicitOptions&, const Barrier&, const Periodicity&,
+                                         const std::vector<MirrorWallPtr>&) {
+  throw InvalidArgument("stepper = explicit: this distribution steps implicitly only");
+}
 
 int Simulation::mirrored_walls() const { return static_cast<int>(walls_.size()); }
 
@@ -622,7 +624,8 @@ SimulationStep Simulation::advance_adaptive(double t_limit) {
   require_started("advance_adaptive");
   require(std::isfinite(t_limit) && t_limit > time_, "t_limit", t_limit,
           format("must be finite and > the current time {}", time_));
-  if (!implicit_ && !distribution_) throw InvalidArgument("stepper = \"explicit\": adaptive steps need the implicit stepper's error estimate");
+  if (options_.stepper != StepperKind::Implicit)
+    throw InvalidArgument("stepper = \"explicit\": adaptive steps need the implicit stepper's error estimate");
   require(dt_next_ > 0.0, "next dt", dt_next_, "must be set (set_next_dt) before the first adaptive step");
   return guarded([&] { return advance_adaptive_impl(t_limit); });
 }

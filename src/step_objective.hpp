@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "otfp/functional.hpp"
+#include "otfp/explicit_stepper.hpp"
 #include "otfp/implicit_stepper.hpp"
 #include "otfp/minimizer.hpp"
 #include "otfp/step_summary.hpp"
@@ -49,6 +50,8 @@ StepFunctional serial_step_functional(Functional& f);
 
 // The functional's options of a step with these options (dt set per step).
 FunctionalOptions functional_options(const ImplicitOptions& o);
+// The explicit stepper's (serial and distributed).
+FunctionalOptions functional_options(const ExplicitOptions& o);
 
 // The thresholds of one step's stopping rule, from the smallest width and
 // mass, the total mass and F's parts at the anchor, each taken over every

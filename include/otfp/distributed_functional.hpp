@@ -51,6 +51,12 @@ class DistributedFunctional {
   // last build (or a width has left its margin), as the serial list is.
   FunctionalParts evaluate(const std::vector<Vec3>& x, const std::vector<double>& s, Gradient* grad);
 
+  // Force (27)'s velocity -(kappa grad rho / rho + grad Psi) at this rank's
+  // particles, rho summed over every rank's blobs and the images
+  // (collective; Functional::explicit_velocity). Masses and widths are those
+  // of set_reference().
+  void explicit_velocity(const std::vector<Vec3>& x, const std::vector<double>& s, std::vector<Vec3>& v);
+
   // Image blobs at mirrored walls, as Functional::set_images: each rank
   // mirrors its own particles and its ghosts (the serial selection rule).
   void set_images(WallImages images);

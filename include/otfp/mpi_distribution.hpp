@@ -8,7 +8,8 @@
 //   sim.start(my_share);            // any split over the ranks, even all on rank 0
 //   sim.run(control, &observer);    // the library's one time loop, on every rank
 //
-// - Diffusion: DistributedImplicitStepper (TAO on the world), with the image
+// - Diffusion: DistributedImplicitStepper (TAO on the world), or
+//   DistributedExplicitStepper for an explicit Simulation, with the image
 //   blobs of the Simulation's mirrored walls.
 // - Boundary projection: every rank gathers the particles the projection
 //   reads (BoundaryProjection::reads: those near the boundary), in id order,
@@ -27,6 +28,7 @@
 #include <vector>
 
 #include "otfp/decomposition.hpp"
+#include "otfp/distributed_explicit_stepper.hpp"
 #include "otfp/distributed_stepper.hpp"
 #include "otfp/run_distribution.hpp"
 
@@ -54,6 +56,8 @@ class MpiDistribution final : public RunDistribution {
 
   void configure(int dim, const ImplicitOptions& options, const Barrier& barrier, const Periodicity& periodicity,
                  const std::vector<MirrorWallPtr>& walls) override;
+  void configure_explicit(int dim, const ExplicitOptions& options, const Barrier& barrier,
+                          const Periodicity& periodicity, const std::vector<MirrorWallPtr>& walls) override;
   StepSummary diffuse(ParticleSet& owned, double dt, double max_error) override;
   void reset_history() override;
   void undo_last_history_update() override;
@@ -82,6 +86,7 @@ class MpiDistribution final : public RunDistribution {
   MpiDistributionOptions options_;
   int dim_ = 3;
   std::unique_ptr<DistributedImplicitStepper> stepper_;
+  std::unique_ptr<DistributedExplicitStepper> explicit_stepper_;  // instead of stepper_ (no history)
   std::unique_ptr<BisectionLayout> layout_;
   MpiDistributionStats stats_;
 };

@@ -13,6 +13,7 @@
 
 #include "otfp/barrier.hpp"
 #include "otfp/boundary.hpp"
+#include "otfp/explicit_stepper.hpp"
 #include "otfp/images.hpp"
 #include "otfp/implicit_stepper.hpp"
 #include "otfp/particles.hpp"
@@ -31,6 +32,11 @@ class RunDistribution {
   // field for what a distributed step cannot do.
   virtual void configure(int dim, const ImplicitOptions& options, const Barrier& barrier,
                          const Periodicity& periodicity, const std::vector<MirrorWallPtr>& walls) = 0;
+  // The same for the explicit step (instead of configure()); diffuse() then
+  // takes explicit steps (max_error ignored) and the history is empty. A
+  // distribution that cannot step explicitly throws InvalidArgument.
+  virtual void configure_explicit(int dim, const ExplicitOptions& options, const Barrier& barrier,
+                                  const Periodicity& periodicity, const std::vector<MirrorWallPtr>& walls);
 
   // The implicit step of the union of the shares, on this process's share
   // (collective; accepted or refused on every process alike). max_error: as

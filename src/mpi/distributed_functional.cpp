@@ -260,6 +260,19 @@ struct DistributedFunctional::Impl {
     stats.ghosts = n_ghosts;
   }
 
+  // The ghosts (and images) of the owned (x, s): rebuilt or refreshed
+  // (collective). Returns the seconds it took.
+  double sync(const std::vector<Vec3>& x, const std::vector<double>& s) {
+    const auto t0 = Clock::now();
+    if (needs_rebuild(x, s)) {
+      rebuild(x, s);
+    } else {
+      if (!images.active()) bcast(x, s);  // with images needs_rebuild() has sent them
+      extend();
+    }
+    return seconds_since(t0);
+  }
+
   // Owned (x, s) into the local arrays, the ghosts' from their owners.
   // The images after the owned blobs and the ghosts: positions from their
   // sources' (x_local's first n_owned + n_ghost entries), widths and masses theirs.
@@ -328,14 +341,7 @@ FunctionalParts DistributedFunctional::evaluate(const std::vector<Vec3>& x, cons
   require(x.size() == d.m.size() && s.size() == d.m.size(), "configuration size", static_cast<double>(x.size()),
           "must match the owned particles set by set_reference()");
   const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
-  const auto t0 = Clock::now();
-  if (d.needs_rebuild(x, s)) {
-    d.rebuild(x, s);
-  } else {
-    if (!d.images.active()) d.bcast(x, s);  // with images needs_rebuild() has sent them
-    d.extend();
-  }
-  double exchange = seconds_since(t0);
+  double exchange = d.sync(x, s);
 
   const std::size_t n = d.n_owned, n_local = d.n_owned + d.n_ghosts, n_ext = d.x_local.size();
   const bool widths = grad && d.options.optimise_widths;
@@ -389,6 +395,31 @@ FunctionalParts DistributedFunctional::evaluate(const std::vector<Vec3>& x, cons
   d.stats.seconds += exchange;
   ++d.stats.evaluations;
   return parts;
+}
+
+void DistributedFunctional::explicit_velocity(const std::vector<Vec3>& x, const std::vector<double>& s,
+                                              std::vector<Vec3>& v) {
+  Impl& d = *impl_;
+  require(x.size() == d.m.size() && s.size() == d.m.size(), "configuration size", static_cast<double>(x.size()),
+          "must match the owned particles set by set_reference()");
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  const double exchange = d.sync(x, s);
+  // rho and grad rho at the owned particles from every blob within reach:
+  // own, ghosts and images (the serial Functional::explicit_velocity).
+  const std::size_t n = d.n_owned;
+  d.entropy.evaluate(d.x_local, d.s_local, d.m_local, d.list, nullptr, n);
+  const auto& rho = d.entropy.density();
+  const auto& grho = d.entropy.density_gradient();
+  v.resize(n);
+  const double kappa = d.options.kappa;
+#pragma omp parallel for schedule(static)
+  for (std::size_t r = 0; r < n; ++r) {
+    Vec3 gpsi;
+    d.barrier.barrier().value(x[r], &gpsi);
+    v[r] = -(kappa * grho[r] / rho[r] + gpsi);  // force (27), term 1, and the barrier's
+  }
+  d.stats.seconds += exchange;
+  ++d.stats.evaluations;
 }
 
 void DistributedFunctional::set_images(WallImages images) {

@@ -76,11 +76,21 @@ int MpiDistribution::size() const { return world_size(); }
 void MpiDistribution::configure(int dim, const ImplicitOptions& options, const Barrier& barrier,
                                 const Periodicity& periodicity, const std::vector<MirrorWallPtr>& walls) {
   dim_ = dim;
+  explicit_stepper_.reset();
   stepper_ = std::make_unique<DistributedImplicitStepper>(dim, options, barrier, periodicity);
   if (!walls.empty()) stepper_->functional().set_images(WallImages(walls));
 }
 
+void MpiDistribution::configure_explicit(int dim, const ExplicitOptions& options, const Barrier& barrier,
+                                         const Periodicity& periodicity, const std::vector<MirrorWallPtr>& walls) {
+  dim_ = dim;
+  stepper_.reset();
+  explicit_stepper_ = std::make_unique<DistributedExplicitStepper>(dim, options, barrier, periodicity);
+  if (!walls.empty()) explicit_stepper_->functional().set_images(WallImages(walls));
+}
+
 StepSummary MpiDistribution::diffuse(ParticleSet& owned, double dt, double max_error) {
+  if (explicit_stepper_) return explicit_stepper_->step(owned, dt);
   return stepper().step(owned, dt, max_error);
 }
 
@@ -89,10 +99,24 @@ DistributedImplicitStepper& MpiDistribution::stepper() const {
   return *stepper_;
 }
 
-void MpiDistribution::reset_history() { stepper().history().reset(); }
-void MpiDistribution::undo_last_history_update() { stepper().history().undo_last_update(); }
-HistoryState MpiDistribution::local_history() const { return stepper().history().state(); }
-void MpiDistribution::restore_history(const HistoryState& state) { stepper().history().restore(state); }
+// An explicit run keeps no history: its state is empty.
+void MpiDistribution::reset_history() {
+  if (!explicit_stepper_) stepper().history().reset();
+}
+void MpiDistribution::undo_last_history_update() {
+  if (!explicit_stepper_) stepper().history().undo_last_update();
+}
+HistoryState MpiDistribution::local_history() const {
+  return explicit_stepper_ ? HistoryState{} : stepper().history().state();
+}
+void MpiDistribution::restore_history(const HistoryState& state) {
+  if (!explicit_stepper_) {
+    stepper().history().restore(state);
+    return;
+  }
+  require(state.entries.empty(), "history", static_cast<double>(state.entries.size()),
+          "an explicit run keeps none: must be empty");
+}
 
 namespace {
 constexpr int kHistoryDoubles = 9;  // d1, d2, ds1, ds2, count
@@ -136,6 +160,7 @@ HistoryState MpiDistribution::gathered_history() {
 
 const ExchangeStats& MpiDistribution::exchange() const {
   static const ExchangeStats none;
+  if (explicit_stepper_) return explicit_stepper_->functional().exchange();
   return stepper_ ? stepper_->exchange() : none;
 }
 
