@@ -1,7 +1,9 @@
 #pragma once
 // Internal to the implicit stepper (src/implicit_stepper.cpp): the objective
 // one implicit step minimises, (28) in scaled unknowns, and the norm of its
-// stopping rule (stopping_measure). Definitions in src/step_objective.cpp.
+// stopping rule (stopping_measure); and the Functional options of either
+// stepper (the explicit ones use those too). Definitions in
+// src/step_objective.cpp and src/explicit_stepper.cpp.
 #include <cstddef>
 #include <functional>
 #include <vector>

@@ -18,6 +18,7 @@
 
 #include "otfp/decomposition.hpp"
 #include "otfp/distributed_functional.hpp"
+#include "otfp/distributed_explicit_stepper.hpp"
 #include "otfp/distributed_stepper.hpp"
 #include "otfp/functional.hpp"
 #include "otfp/geometry.hpp"
@@ -241,8 +242,9 @@ TEST(DistributedFunctional, MatchesSerialWithImageBlobs) {
 // Force (27)'s velocity over the ranks (explicit_velocity: rho and grad rho
 // at the owned particles from own, ghost and image blobs) against the
 // serial Functional's, on slabs and on random assignments, with the sphere
-// wall of a reservoir band's back face and a barrier; after a shift that
-// rebuilds the ghosts.
+// wall of a reservoir band's back face and a barrier: at the reference (a
+// new ghost set), at positions moved by 0.05 widths (the ghosts kept, their
+// positions sent again) and after a shift of 2 widths.
 TEST(DistributedFunctional, ExplicitVelocityMatchesSerial) {
   for (int dim : {2, 3}) {
     SCOPED_TRACE(dim);
@@ -256,10 +258,13 @@ TEST(DistributedFunctional, ExplicitVelocityMatchesSerial) {
       serial.set_images(WallImages(sphere));
       dist.set_images(WallImages(sphere));
       Cloud moved = c;
-      for (double shift : {0.0, 2.0}) {
+      for (double shift : {0.0, 0.05, 2.0}) {
         displace(moved, shift);
-        serial.set_reference(moved.x, moved.s, moved.m);
-        dist.set_reference(mine(moved.x, owner), mine(moved.s, owner), mine(moved.m, owner));
+        if (shift != 0.05) {
+          serial.set_reference(moved.x, moved.s, moved.m);
+          dist.set_reference(mine(moved.x, owner), mine(moved.s, owner), mine(moved.m, owner));
+        }
+        const int builds = dist.exchange().rebuilds;
         std::vector<Vec3> vs, vd;
         serial.explicit_velocity(moved.x, moved.s, vs);
         dist.explicit_velocity(mine(moved.x, owner), mine(moved.s, owner), vd);
@@ -274,8 +279,14 @@ TEST(DistributedFunctional, ExplicitVelocityMatchesSerial) {
         EXPECT_EQ(i, vd.size());
         double rel = diff / scale;
         MPI_Allreduce(MPI_IN_PLACE, &rel, 1, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD);
-        if (world_rank() == 0) std::printf("  %d ranks, d = %d: max |v - v_serial| / max |v_serial| = %.2g\n", world_size(), dim, rel);
-        EXPECT_LT(rel, 1e-12);
+        if (world_rank() == 0)
+          std::printf("  %d ranks, d = %d: max |v - v_serial| / max |v_serial| = %.2g\n", world_size(), dim, rel);
+        // Round-off (2e-16 to 4e-16 measured), except where a pair between
+        // r_c and r_c + skin is in one list and not the other: a kernel
+        // value below the tolerance (1e-8), which grad rho / rho magnifies
+        // at the cloud's thin edge (measured once 2.4e-11, 3 ranks, 3-D).
+        EXPECT_LT(rel, 1e-9);
+        EXPECT_EQ(dist.exchange().rebuilds - builds, shift == 0.05 ? 0 : 1) << "shift " << shift;
       }
     }
   }
@@ -1175,6 +1186,31 @@ TEST(DistributedSimulation, ExplicitSchemesMatchTheSerialRun) {
     // step, near its stability limit). The implicit runs' bound.
     expect_same_run(r);
   }
+}
+
+// A step refused on one rank only (a particle of mass 0 there), and a step
+// whose update is not finite (dt = 1e308: the positions overflow), are rejected on every rank with
+// the particles untouched, and no rank waits in a collective.
+TEST(DistributedExplicitStepper, ARefusalOnOneRankIsEveryRanks) {
+  const Cloud c = ball_cloud(3, 600, 31, false);
+  const std::vector<int> owner = owners(c, Split::Slabs, 99);
+  ParticleSet owned(3);
+  for (std::size_t p = 0; p < c.x.size(); ++p)
+    if (owner[p] == world_rank()) owned.add_with_id(static_cast<ParticleId>(p), c.x[p], c.s[p], c.m[p]);
+  DistributedExplicitStepper stepper(3, ExplicitOptions{});
+  const ParticleSet before = owned;
+  EXPECT_TRUE(stepper.step(owned, 1e-6).accepted);
+  owned = before;
+  if (world_rank() == world_size() - 1 && owned.size() > 0) owned.masses()[0] = 0.0;
+  const ParticleSet bad = owned;
+  StepSummary s = stepper.step(owned, 1e-6);
+  EXPECT_FALSE(s.accepted);
+  EXPECT_EQ(owned.positions(), bad.positions());
+  owned = before;
+  s = stepper.step(owned, 1e308);
+  EXPECT_FALSE(s.accepted);
+  EXPECT_EQ(s.reason, TerminationReason::NonFinite);
+  EXPECT_EQ(owned.positions(), before.positions());
 }
 
 // An explicit run over the ranks refuses adaptive steps, as a serial one

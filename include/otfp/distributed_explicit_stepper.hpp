@@ -11,8 +11,11 @@
 // dt. A step whose masses or widths are not finite and > 0 on some rank, or
 // whose update is not finite anywhere, is rejected on every rank
 // (accepted == false, the particles untouched). Accepted positions are
-// wrapped into a periodic box. Ignored: sort_particles (each rank keeps its
-// order); there is no external potential.
+// wrapped into a periodic box. An error inside the collectives on one rank
+// only (a resource limit of the neighbour search) aborts the world
+// (MPI_Abort, the reason on stderr), where the serial stepper rejects the
+// step. Ignored: sort_particles (each rank keeps its order); there is no
+// external potential.
 #include <memory>
 
 #include "otfp/distributed_functional.hpp"

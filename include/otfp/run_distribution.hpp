@@ -38,9 +38,10 @@ class RunDistribution {
   virtual void configure_explicit(int dim, const ExplicitOptions& options, const Barrier& barrier,
                                   const Periodicity& periodicity, const std::vector<MirrorWallPtr>& walls);
 
-  // The implicit step of the union of the shares, on this process's share
-  // (collective; accepted or refused on every process alike). max_error: as
-  // ImplicitStepper::step (infinity: no error control).
+  // The diffusive step (implicit, or explicit after configure_explicit) of
+  // the union of the shares, on this process's share (collective; accepted
+  // or refused on every process alike). max_error: as ImplicitStepper::step
+  // (infinity: no error control; ignored by the explicit step).
   virtual StepSummary diffuse(ParticleSet& owned, double dt, double max_error) = 0;
 
   // The step's history (otfp/step_history.hpp) of this process's particles;

@@ -184,8 +184,9 @@ class Simulation {
   // measure() and blob_mass() are global). The steps (fixed or adaptive,
   // Euler or BDF2, with the predictor), projections, source and ledger are
   // those of the serial run on the union (the projection draws its random
-  // deletions by id, the source per particle id). Refused (InvalidArgument
-  // naming the field): the explicit stepper and a backend other than TAO.
+  // deletions by id, the source per particle id); the explicit stepper's
+  // steps too (fixed steps only, as serially). Refused (InvalidArgument
+  // naming the field): an implicit run with a backend other than TAO.
   // Collective: the constructor, start(), every step and the checkpoints.
   Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> boundary, SimulationOptions options,
              std::shared_ptr<RunDistribution> distribution);

@@ -55,8 +55,9 @@ struct DistributedExplicitStepper::Impl {
   void velocity(const std::vector<Vec3>& x, const std::vector<double>& s, const std::vector<double>& m,
                 std::vector<Vec3>& v) {
     if (options.scheme == ExplicitScheme::EulerExactGradient) {
-      // With the reference at x the transport gradient vanishes: v = -(1/m) d(E + B)/dx.
-      functional.set_reference(x, s, m);
+      // Only ever at x^k, the reference step() set (set_reference() again
+      // would force a new ghost set): the transport gradient vanishes there,
+      // v = -(1/m) d(E + B)/dx.
       Gradient g;
       functional.evaluate(x, s, &g);
       v.resize(x.size());
@@ -128,24 +129,27 @@ StepSummary DistributedExplicitStepper::step(ParticleSet& owned, double dt) {
       failure = "non-finite F at the start of the step";
     } else if (d.options.scheme == ExplicitScheme::Rk4Force27) {
       std::vector<Vec3> k1, k2, k3, k4, tmp(n);
+      summary.evaluations = 1;
       d.velocity(x0, s, m, k1);
       for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + 0.5 * dt * k1[p];
       finite = all_finite(tmp, d.comm);
       if (finite) {
+        ++summary.evaluations;
         d.velocity(tmp, s, m, k2);
         for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + 0.5 * dt * k2[p];
         finite = all_finite(tmp, d.comm);
       }
       if (finite) {
+        ++summary.evaluations;
         d.velocity(tmp, s, m, k3);
         for (std::size_t p = 0; p < n; ++p) tmp[p] = x0[p] + dt * k3[p];
         finite = all_finite(tmp, d.comm);
       }
       if (finite) {
+        ++summary.evaluations;
         d.velocity(tmp, s, m, k4);
         for (std::size_t p = 0; p < n; ++p) x[p] = x0[p] + dt / 6.0 * (k1[p] + 2.0 * k2[p] + 2.0 * k3[p] + k4[p]);
       }
-      summary.evaluations = 4;
     } else {
       d.velocity(x0, s, m, v);
       for (std::size_t p = 0; p < n; ++p) x[p] = x0[p] + dt * v[p];
@@ -153,7 +157,7 @@ StepSummary DistributedExplicitStepper::step(ParticleSet& owned, double dt) {
     }
     if (finite) finite = all_finite(x, d.comm);
     if (finite) {
-      d.functional.set_reference(x0, s, m);
+      // The reference is still x^k (the serial stepper sets it again).
       summary.parts_after = d.functional.evaluate(x, s, nullptr);
       summary.f_after = summary.parts_after.total();
       if (!std::isfinite(summary.f_after)) {
