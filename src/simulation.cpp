@@ -182,7 +182,8 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
   // Reservoir treatment (docs/boundaries.md): Omega_ext = Omega extended by a
   // band of width w over the Dirichlet patches.
   ProjectionOptions po = o.projection;
-  // Over several processes the gathered particles come in another order.
+  // Over several processes the gathered particles come in another order:
+  // only draws in id order give the same particles on any rank count.
   if (distribution_) po.draw_by_id = true;
   if (po.dirichlet_mode == DirichletMode::Reservoir && !dirichlet_ids.empty()) {
     try {

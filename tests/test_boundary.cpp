@@ -1166,10 +1166,8 @@ TEST(BoundaryProjection, DrawByIdIsIndependentOfStorageOrder) {
     BoundaryProjection proj = sim.projection();
     Rng rng(3);
     std::set<ParticleId> before(set.ids().begin(), set.ids().end());
-    if (by_id) {
-      po.draw_by_id = true;
-      proj = BoundaryProjection(ball, proj.conditions(), po, setup.options.particle_mass, setup.options.width_s);
-    }
+    po.draw_by_id = by_id;  // the default is true
+    proj = BoundaryProjection(ball, proj.conditions(), po, setup.options.particle_mass, setup.options.width_s);
     const PatchLedger l = proj.apply(set, sim.time(), setup.parameters.dt, rng);
     EXPECT_GT(l.removed, 0);
     for (ParticleId id : set.ids()) before.erase(id);

@@ -104,6 +104,8 @@ void bind_options(py::module_& m) {
       .field("reservoir_integral_time", &ProjectionOptions::reservoir_integral_time, "quiet: integral action's tau (0: off)")
       .field("reservoir_group_target", &ProjectionOptions::reservoir_group_target, "quiet: sublayers held together up to this target")
       .field("absorb_exterior", &ProjectionOptions::absorb_exterior, "layer: remove stranded exterior particles")
+      .field("draw_by_id", &ProjectionOptions::draw_by_id,
+             "random deletions from the candidates in id order (default); False: storage order (serial only)")
       // The reservoir band's domain is built by the Simulation, not given here.
       .validated([](const ProjectionOptions& o) { o.validate(/*require_reservoir_domain=*/false); })
       .done();
