@@ -120,22 +120,31 @@ std::string nearest(const std::string& word, const std::vector<std::string>& nam
   return best;
 }
 
-// Parses and checks everything; nullptr after printing the error.
+// Parses and checks everything; nullptr after printing the error. A
+// configuration's errors come from the arguments and files alone, the same
+// on every rank, and go to `err`; any other to `err_any_rank`.
 std::unique_ptr<ConfiguredRun> load(const std::string& config, const std::vector<std::string>& sets, std::ostream& err,
-                                 int& code) {
+                                    std::ostream& err_any_rank, int& code) {
   try {
     return std::make_unique<ConfiguredRun>(parse_config_file(config, sets));
   } catch (const ConfigError& e) {
     code = error(err, e.what(), kUsage);
   } catch (const std::exception& e) {
-    code = error(err, e.what(), kUsage);
+    code = error(err_any_rank, e.what(), kUsage);
   }
   return nullptr;
 }
 
 }  // namespace
 
-int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream& err) {
+int cli_main(int argc, const char* const* argv, std::ostream& out_any_rank, std::ostream& err_any_rank) {
+  // Started by mpirun, every rank parses the same arguments and files and
+  // refuses them alike: rank 0 alone prints what follows from them (during
+  // the run, rank 0 reports every rank's outcome, below).
+  std::ostringstream other_rank;
+  const bool first_rank = launched_rank() == 0;
+  std::ostream& out = first_rank ? out_any_rank : other_rank;
+  std::ostream& err = first_rank ? err_any_rank : other_rank;
 #ifdef OTFP_WITH_TAO
   otfp::register_tao_backend();  // solver.backend = "tao"
   const std::string backends = " (solver backends: ceres, nlopt, tao with " + otfp::petsc_version() + ")";
@@ -314,7 +323,7 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
       // CONFIG first: a missing or bad file is the first thing to fix.
       if (!config.empty()) {
         int code = 0;
-        if (!load(config, sets, err, code)) return code;
+        if (!load(config, sets, err, err_any_rank, code)) return code;
       }
       return error(err, std::string(config.empty() ? "CONFIG" : "--out") + " is required (or --resume DIR) (try --help)",
                    kUsage);
@@ -333,7 +342,7 @@ int cli_main(int argc, const char* const* argv, std::ostream& out, std::ostream&
     }
 
   int code = 0;
-  std::unique_ptr<ConfiguredRun> sim = load(config, sets, err, code);
+  std::unique_ptr<ConfiguredRun> sim = load(config, sets, err, err_any_rank, code);
   if (!sim) return code;
 
   // A distributed run: rank 0 writes the files and prints; the outcomes

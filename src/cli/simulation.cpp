@@ -111,6 +111,12 @@ int launched_ranks() {
   return 1;
 }
 
+int launched_rank() {
+  for (const char* var : {"OMPI_COMM_WORLD_RANK", "PMI_RANK"})
+    if (const char* rank = std::getenv(var); rank != nullptr) return std::max(0, std::atoi(rank));
+  return 0;
+}
+
 namespace {
 
 // Started by mpirun on several ranks: the run is distributed

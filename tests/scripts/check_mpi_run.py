@@ -27,8 +27,9 @@ Usage: check_mpi_run.py OTFP MPIEXEC WORKDIR
    for explicit Euler on the square pipe example, whose outlet's layer gives
    up particles at random (before the draws were by id serially too, 2 of
    its 400 particles differed after two steps).
-6. A configuration the distributed step refuses (the Ceres backend) exits 2
-   with one line naming the key.
+6. A configuration the distributed step refuses (the Ceres backend), and a
+   resume that changes a key it may not, exit 2 with one line naming the
+   key (printed by rank 0 only: every rank refuses them alike).
 """
 import csv
 import os
@@ -174,9 +175,13 @@ def main():
             failures.append(name + ": particles_final.csv differs")
 
     # Refused by the distributed step: one line naming the key, exit 2.
+    # Every rank refuses it alike; rank 0 alone prints the line.
     p = run([EXAMPLE, "--set", "run.t_end=0.1", "--out", os.path.join(WORK, "ceres")], ranks=2, expect=2)
-    if "backend" not in p.stderr:
-        failures.append(f"the Ceres backend on 2 ranks: no line naming the key:\n{p.stderr}")
+    if "backend" not in p.stderr or p.stderr.count("otfp: error:") != 1:
+        failures.append(f"the Ceres backend on 2 ranks: not one line naming the key:\n{p.stderr}")
+    p = run(["--resume", dist, "--set", "physics.kappa=2"], ranks=2, expect=2)
+    if "physics.kappa" not in p.stderr or p.stderr.count("otfp: error:") != 1:
+        failures.append(f"a refused resume on 2 ranks: not one line naming the key:\n{p.stderr}")
 
 
 main()

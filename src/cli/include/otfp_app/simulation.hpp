@@ -110,6 +110,8 @@ struct RunResult {
 // process among; 1 when not started by it. With more than one, a
 // ConfiguredRun is distributed over them (docs/distributed.md).
 int launched_ranks();
+// This process's rank among them (0 when not started by mpirun).
+int launched_rank();
 
 class ConfiguredRun {
  public:
