@@ -13,10 +13,12 @@
 // A Barrier, periodic axes and image blobs at mirrored walls (set_images)
 // are supported.
 #include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <vector>
 
 #include "otfp/functional.hpp"
+#include "otfp/step_summary.hpp"
 
 namespace otfp {
 
@@ -27,6 +29,7 @@ struct ExchangeStats {
   std::size_t ghosts = 0;       // ghosts at the last rebuild
   double bytes_sent = 0.0;      // by this rank, forward (ghost data) and back (ghost gradients)
   double seconds = 0.0;         // wall time in the exchanges and global sums
+  double list_seconds = 0.0;    // wall time of this rank's neighbour-list builds
   int evaluations = 0;
 };
 
@@ -65,6 +68,13 @@ class DistributedFunctional {
   void set_dt(double dt);  // the transport term's step (> 0)
   std::size_t owned() const;
   const ExchangeStats& exchange() const;
+  std::uint64_t pair_evaluations() const;  // this rank's pair-kernel evaluations (EntropyTerm::pair_evaluations)
+  // A step's share of the work since `list_seconds_before` and
+  // `pairs_before` (this rank's exchange().list_seconds and
+  // pair_evaluations() when it began) into summary.list_seconds (the
+  // slowest rank's: the step's wall time waits for it) and
+  // summary.pair_evaluations (all ranks'). Collective.
+  void add_step_work(double list_seconds_before, std::uint64_t pairs_before, StepSummary& summary) const;
   const NeighborList& list() const;  // over this rank's particles, then its ghosts, then images
   std::size_t ghosts() const;        // ghosts of the last build (list rows owned() ... owned() + ghosts())
 

@@ -115,6 +115,8 @@ StepSummary DistributedExplicitStepper::step(ParticleSet& owned, double dt) {
   const std::vector<Vec3> x0 = owned.positions();
   const std::vector<double> s = owned.widths(), m = owned.masses();
   const int builds_before = d.functional.exchange().rebuilds;
+  const double list_seconds_before = d.functional.exchange().list_seconds;
+  const std::uint64_t pairs_before = d.functional.pair_evaluations();
   std::vector<Vec3> x = x0, v;
   bool finite = true;
   std::string failure = "explicit update produced non-finite positions";
@@ -177,6 +179,7 @@ StepSummary DistributedExplicitStepper::step(ParticleSet& owned, double dt) {
     MPI_Abort(d.comm, 1);
   }
   summary.list_builds = d.functional.exchange().rebuilds - builds_before;
+  d.functional.add_step_work(list_seconds_before, pairs_before, summary);
   if (!finite) return finish(false, failure);
   for (Vec3& y : x) y = d.periodicity.wrap(y);
   owned.positions() = std::move(x);

@@ -249,6 +249,7 @@ struct DistributedFunctional::Impl {
     s_list_local.resize(x_local.size());
     for (std::size_t p = 0; p < x_local.size(); ++p) s_list_local[p] = list_width(s_local[p]);
     list.build(x_local, s_list_local, per);
+    stats.list_seconds += list.build_seconds();  // a new list: its one build
     // Ghost rows only gather the derivatives of the own terms: their
     // entries to other ghosts would add zeros (docs/distributed.md).
     list.drop_pairs_beyond(n_owned);
@@ -438,6 +439,18 @@ void DistributedFunctional::set_dt(double dt) {
 
 std::size_t DistributedFunctional::owned() const { return impl_->m.size(); }
 const ExchangeStats& DistributedFunctional::exchange() const { return impl_->stats; }
+std::uint64_t DistributedFunctional::pair_evaluations() const { return impl_->entropy.pair_evaluations(); }
+
+void DistributedFunctional::add_step_work(double list_seconds_before, std::uint64_t pairs_before,
+                                          StepSummary& summary) const {
+  double seconds = impl_->stats.list_seconds - list_seconds_before;
+  auto pairs = static_cast<unsigned long long>(impl_->entropy.pair_evaluations() - pairs_before);
+  const std::lock_guard<std::recursive_mutex> lock(detail::petsc_mutex());
+  MPI_Allreduce(MPI_IN_PLACE, &seconds, 1, MPI_DOUBLE, MPI_MAX, impl_->comm);
+  MPI_Allreduce(MPI_IN_PLACE, &pairs, 1, MPI_UNSIGNED_LONG_LONG, MPI_SUM, impl_->comm);
+  summary.list_seconds += seconds;
+  summary.pair_evaluations += static_cast<std::uint64_t>(pairs);
+}
 const NeighborList& DistributedFunctional::list() const { return impl_->list; }
 
 std::size_t DistributedFunctional::ghosts() const { return impl_->n_ghosts; }

@@ -238,6 +238,8 @@ StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt, doub
   StepSummary summary;
   summary.dt = dt;
   const int builds_before = d.functional.exchange().rebuilds;
+  const double list_seconds_before = d.functional.exchange().list_seconds;
+  const std::uint64_t pairs_before = d.functional.pair_evaluations();
   const std::vector<ParticleId>& ids = owned.ids();
   std::vector<DisplacementHistory> hist = d.history.lookup(ids);
   detail::StepSolveHooks hooks = d.hooks(ids);
@@ -252,6 +254,7 @@ StepSummary DistributedImplicitStepper::step(ParticleSet& owned, double dt, doub
   }
   if (!summary.accepted && summary.message.empty()) summary.message = "step rejected";
   summary.list_builds = d.functional.exchange().rebuilds - builds_before;
+  d.functional.add_step_work(list_seconds_before, pairs_before, summary);
   summary.wall_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   return summary;
 }
