@@ -182,9 +182,17 @@ Simulation::Simulation(DomainPtr domain, std::vector<ConstantBoundaryData> bound
   // Reservoir treatment (docs/boundaries.md): Omega_ext = Omega extended by a
   // band of width w over the Dirichlet patches.
   ProjectionOptions po = o.projection;
-  // Over several processes the gathered particles come in another order:
-  // only draws in id order give the same particles on any rank count.
-  if (distribution_) po.draw_by_id = true;
+  // Over several processes the gathered particles come in another order, and
+  // each rank holds its own share: only draws in id order (projection) and
+  // per-id streams (source) give the same particles on any rank count.
+  // Refused rather than overridden, so that a run never silently does other
+  // than its options say.
+  if (distribution_) {
+    require(po.draw_by_id, "projection.draw_by_id", "false",
+            "must be true on several processes (storage-order draws are serial only)");
+    require(o.source_draws_by_id, "source_draws_by_id", "false",
+            "must be true on several processes (one stream in storage order is serial only)");
+  }
   if (po.dirichlet_mode == DirichletMode::Reservoir && !dirichlet_ids.empty()) {
     try {
       reservoir_domain_ = domain_->extended(dirichlet_ids, po.reservoir_thickness);
@@ -384,7 +392,7 @@ SimulationStep Simulation::take_step(double t0, double t1, double max_error) {
   if (s_rate != 0.0) {
     const SourceField field = [s_rate](const Vec3&, double) { return s_rate; };
     SourceResult sr;
-    if (options_.source_draws_by_id || distribution_) {
+    if (options_.source_draws_by_id) {
       // Each particle's draws from its own stream (decomposition-independent):
       // over several processes the counts come back summed over all of them.
       SourceDraws draws;

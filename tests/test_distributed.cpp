@@ -1178,6 +1178,14 @@ TEST(DistributedSimulation, RefusesWhatItDoesNotDoYet) {
   SimulationOptions ceres = o;
   ceres.implicit.minimizer.backend = Backend::Ceres;
   expect_refused(ceres, "backend");
+  // Storage-order draws would differ with the rank count: refused, not
+  // silently replaced by draws in id order.
+  SimulationOptions storage_order = o;
+  storage_order.projection.draw_by_id = false;
+  expect_refused(storage_order, "projection.draw_by_id");
+  SimulationOptions one_stream = o;
+  one_stream.source_draws_by_id = false;
+  expect_refused(one_stream, "source_draws_by_id");
 }
 
 // The explicit schemes over the ranks (DistributedExplicitStepper): force

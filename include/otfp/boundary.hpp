@@ -81,7 +81,7 @@ struct ProjectionOptions {
   double reservoir_integral_time = 0.0;  // Reservoir, Quiet: tau of the deficit's time integral within the tolerance (0: off; setup_run: 10 w^2 / kappa)
   double reservoir_group_target = 64.0;  // Reservoir, Quiet: sublayers held together until their targets reach this (particles)
   bool absorb_exterior = false;                           // Layer: remove particles outside Omega on Dirichlet patches
-  bool draw_by_id = true;  // random deletions drawn from the candidates in id order (independent of storage order and rank count); false: storage order (serial only)
+  bool draw_by_id = true;  // random deletions drawn from the candidates in id order (independent of storage order and rank count); false: storage order (serial only: a distributed Simulation refuses it)
   // Throws InvalidArgument naming the field, the value and the rule. The
   // reservoir fields are checked only with dirichlet_mode = Reservoir;
   // reservoir_domain only when asked (a Simulation builds its own).

@@ -69,7 +69,7 @@ struct SimulationOptions {
   ExplicitOptions explicit_options;            // scheme, kappa, rho_ref (explicit)
   Vec3 velocity = Vec3::Zero();                // uniform advection velocity (line 2)
   double source_rate = 0.0;                    // uniform volumetric source rate s (line 3)
-  bool source_draws_by_id = true;              // the source's random numbers per particle id (independent of storage order and rank count); false: one stream in storage order
+  bool source_draws_by_id = true;              // the source's random numbers per particle id (independent of storage order and rank count); false: one stream in storage order (serial only: a distributed Simulation refuses it)
   TimeStepControlOptions time_control;         // advance_adaptive(): tolerance, dt_min, dt_max
   int max_error_rejections = 1000;             // advance_adaptive(): tries per step before failing
   std::uint64_t seed = 1;                      // random numbers (projection, source) unless start() is given an Rng
