@@ -202,7 +202,7 @@ void BM_PairSweeps(benchmark::State& state) {
     }
 #endif
     detail::set_kernel_isa(v == 2 ? detail::KernelIsa::Generic : detail::KernelIsa::Auto);
-    const detail::BlobArrays b{xyzb, mc.data(), beta[0]};  // equal widths: records hold mc (as Functional does)
+    const detail::BlobArrays b{xyzb, mc.data(), beta[0], n};  // equal widths: records hold mc (as Functional does)
     detail::density_rows(0, n, off, idx, b, mi, rho.data(), gx.data(), gy.data(), gz.data());
     for (std::size_t p = 0; p < n; ++p) xyza[4 * p + 3] = m[p] / rho[p];
     detail::gather_rows(0, n, off, idx, b, xyza, mi, sx.data(), sy.data(), sz.data(), ws.data(), w2.data());

@@ -109,7 +109,7 @@ double EntropyTerm::evaluate(const std::vector<Vec3>& x, const std::vector<doubl
     xyzb[4 * p + 2] = x[p][2];
     xyzb[4 * p + 3] = uniform ? mc_[p] : beta_[p];
   }
-  const detail::BlobArrays b{xyzb, mc_.data(), uniform ? beta_[0] : 0.0};
+  const detail::BlobArrays b{xyzb, mc_.data(), uniform ? beta_[0] : 0.0, n};
   detail::MinimumImage mi;
   const Periodicity& per = list.periodicity();
   for (int k = 0; k < 3; ++k) {

@@ -2,6 +2,9 @@
 // kernels, as the instruction-set switch (src/isa.hpp) says.
 #include "pair_kernels.hpp"
 
+#include <stdexcept>
+#include <string>
+
 #include "isa.hpp"
 
 namespace otfp::detail {
@@ -21,8 +24,26 @@ void gather_rows(std::size_t, std::size_t, const std::uint32_t*, const std::uint
 }  // namespace avx2
 #endif
 
+void check_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, const std::uint32_t* indices,
+                const BlobArrays& b) {
+  auto fail = [&](const std::string& what) {
+    throw std::out_of_range("pair sweep over rows [" + std::to_string(r0) + ", " + std::to_string(r1) + ") of " +
+                            std::to_string(b.count) + " records: " + what);
+  };
+  if (r1 < r0 || r1 > b.count) fail("rows beyond the records");
+  for (std::size_t r = r0; r < r1; ++r) {
+    if (offsets[r + 1] < offsets[r]) fail("offsets decrease at row " + std::to_string(r));
+    for (std::uint32_t k = offsets[r]; k < offsets[r + 1]; ++k)
+      if (indices[k] >= b.count)
+        fail("row " + std::to_string(r) + " lists neighbour " + std::to_string(indices[k]));
+  }
+}
+
 void density_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, const std::uint32_t* indices,
                   const BlobArrays& b, const MinimumImage& mi, double* rho, double* gx, double* gy, double* gz) {
+#ifdef OTFP_CHECK_KERNEL_BOUNDS
+  check_rows(r0, r1, offsets, indices, b);
+#endif
 #ifdef OTFP_HAVE_AVX2_KERNELS
   if (use_avx2_fma()) return avx2::density_rows(r0, r1, offsets, indices, b, mi, rho, gx, gy, gz);
 #endif
@@ -32,6 +53,9 @@ void density_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, 
 void gather_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, const std::uint32_t* indices,
                  const BlobArrays& b, const double* xyza, const MinimumImage& mi, double* sx, double* sy, double* sz,
                  double* wsum, double* wr2) {
+#ifdef OTFP_CHECK_KERNEL_BOUNDS
+  check_rows(r0, r1, offsets, indices, b);
+#endif
 #ifdef OTFP_HAVE_AVX2_KERNELS
   if (use_avx2_fma()) return avx2::gather_rows(r0, r1, offsets, indices, b, xyza, mi, sx, sy, sz, wsum, wr2);
 #endif

@@ -18,6 +18,7 @@ struct BlobArrays {
   const double* xyzb;         // 4 per particle, 32-byte aligned: x, y, z, beta = 1/s^2
   const double* mc;           // m (beta/pi)^(d/2): the kernel's peak value
   double uniform_beta = 0.0;  // > 0: every blob has this beta, and xyzb holds x, y, z, mc instead
+  std::size_t count = 0;      // records in xyzb, mc (and a sweep's xyza): the list's indices lie below it
 };
 
 // Minimum image along axes with period L > 0 (L = 0: not periodic).
@@ -39,6 +40,15 @@ void density_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, 
 void gather_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, const std::uint32_t* indices,
                  const BlobArrays& b, const double* xyza, const MinimumImage& mi, double* sx, double* sy, double* sz,
                  double* wsum, double* wr2);
+
+// Throws std::out_of_range unless rows [r0, r1) and every neighbour index of
+// theirs lie below b.count and the offsets do not decrease: the check the
+// sanitizer build makes before each sweep (OTFP_CHECK_KERNEL_BOUNDS), where
+// the AVX2 sweeps are compiled without AddressSanitizer (src/CMakeLists.txt):
+// ASan's check of each of their loads made them the sanitizer pass's largest
+// cost, and an index within range is what keeps every record load in bounds.
+void check_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, const std::uint32_t* indices,
+                const BlobArrays& b);
 
 // A 32-byte aligned view into a vector of doubles sized for n records of 4
 // (the vector's own storage is only 16-byte aligned).

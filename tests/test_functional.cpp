@@ -5,13 +5,17 @@
 #include <omp.h>
 
 #include <cmath>
+#include <cstdint>
 #include <set>
+#include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "otfp/functional.hpp"
 #include "otfp/geometry.hpp"
 #include "test_support.hpp"
 #include "../src/isa.hpp"  // internal: to run each kernel build
+#include "../src/pair_kernels.hpp"  // internal: the sweeps' bounds check
 
 using namespace otfp;
 using otfp::testing::central_difference;
@@ -446,4 +450,32 @@ TEST(PairKernels, EnvironmentOverride) {
   EXPECT_EQ(detail::kernel_isa_from_env(nullptr), detail::KernelIsa::Auto);
   EXPECT_EQ(detail::kernel_isa_from_env(""), detail::KernelIsa::Auto);
   EXPECT_EQ(detail::kernel_isa_from_env("avx2"), detail::KernelIsa::Auto);
+}
+
+// The sanitizer build's check before each sweep (the AVX2 sweeps run without
+// ASan there): a list within the records passes; a neighbour index, a row or
+// offsets beyond them are refused, naming the row.
+TEST(PairKernels, BoundsCheckRefusesIndicesBeyondTheRecords) {
+  const std::vector<std::uint32_t> off{0, 2, 3, 5};
+  const std::vector<std::uint32_t> idx{1, 2, 0, 0, 1};
+  const std::vector<double> mc(3, 1.0);
+  std::vector<double> storage;
+  const double* rec = detail::packed_records(storage, 3);
+  detail::BlobArrays b{rec, mc.data(), 0.0, 3};
+  EXPECT_NO_THROW(detail::check_rows(0, 3, off.data(), idx.data(), b));
+  EXPECT_NO_THROW(detail::check_rows(1, 1, off.data(), idx.data(), b));
+  std::vector<std::uint32_t> bad = idx;
+  bad[3] = 3;  // row 2 lists record 3 of 3
+  try {
+    detail::check_rows(0, 3, off.data(), bad.data(), b);
+    ADD_FAILURE() << "index 3 of 3 records accepted";
+  } catch (const std::out_of_range& e) {
+    EXPECT_NE(std::string(e.what()).find("row 2 lists neighbour 3"), std::string::npos) << e.what();
+  }
+  EXPECT_NO_THROW(detail::check_rows(0, 2, off.data(), bad.data(), b));  // row 2 not swept
+  b.count = 2;                                                          // rows [0, 3) of 2 records
+  EXPECT_THROW(detail::check_rows(0, 3, off.data(), idx.data(), b), std::out_of_range);
+  b.count = 3;
+  const std::vector<std::uint32_t> down{0, 2, 1, 5};
+  EXPECT_THROW(detail::check_rows(0, 3, down.data(), idx.data(), b), std::out_of_range);
 }
