@@ -775,3 +775,28 @@ TEST(Cli, CosineModeFinerThanTheSpacingIsRefused) {
     EXPECT_EQ(std::string(e.what()).rfind("particles.fill = \"empty\": diagnostics.reference", 0), 0u) << e.what();
   }
 }
+
+// Options in PETSC_OPTIONS reach TAO (docs/distributed.md): told PETSc's
+// default for the LMVM initial Hessian (a diagonal Broyden matrix) the run
+// is the default run, told a scalar one it is not.
+TEST(Cli, PetscOptionsReachTao) {
+  auto series = [](const std::string& petsc_options, const std::string& tag) {
+    const fs::path out = fresh_dir(tag);
+    const std::string cmd = "PETSC_OPTIONS='" + petsc_options + "' " + std::string(OTFP_CLI_PATH) + " run " +
+                            (kExamples / "sphere_dirichlet.toml").string() +
+                            " --set solver.backend=tao --set run.t_end=0.1 --out " + out.string() + " >" +
+                            out.string() + ".log 2>&1";
+    const int status = std::system(cmd.c_str());
+    const std::string log = read_text(out.string() + ".log");
+    fs::remove(out.string() + ".log");
+    if (!(WIFEXITED(status) && WEXITSTATUS(status) == 0)) return "exit " + std::to_string(status) + ": " + log;
+    return read_text(out / "series.csv");
+  };
+  const std::string by_default = series("", "tao_scale_default");
+  if (by_default.find("not available") != std::string::npos) GTEST_SKIP() << "built without TAO";
+  ASSERT_EQ(by_default.rfind("step,", 0), 0u) << by_default;
+  EXPECT_EQ(by_default, series("-tao_lmvm_mat_lmvm_scale_type diagonal", "tao_scale_diagonal"));
+  const std::string scalar = series("-tao_lmvm_mat_lmvm_scale_type scalar", "tao_scale_scalar");
+  ASSERT_EQ(scalar.rfind("step,", 0), 0u) << scalar;
+  EXPECT_NE(by_default, scalar);
+}
