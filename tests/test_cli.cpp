@@ -784,7 +784,7 @@ TEST(Cli, PetscOptionsReachTao) {
     const fs::path out = fresh_dir(tag);
     const std::string cmd = "PETSC_OPTIONS='" + petsc_options + "' " + std::string(OTFP_CLI_PATH) + " run " +
                             (kExamples / "sphere_dirichlet.toml").string() +
-                            " --set solver.backend=tao --set run.t_end=0.1 --out " + out.string() + " >" +
+                            " --set solver.backend=tao --set run.t_end=0.05 --out " + out.string() + " >" +
                             out.string() + ".log 2>&1";
     const int status = std::system(cmd.c_str());
     const std::string log = read_text(out.string() + ".log");
