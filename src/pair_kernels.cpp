@@ -2,6 +2,8 @@
 // kernels, as the instruction-set switch (src/isa.hpp) says.
 #include "pair_kernels.hpp"
 
+#include <cstdio>
+#include <cstdlib>
 #include <stdexcept>
 #include <string>
 
@@ -39,10 +41,27 @@ void check_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, co
   }
 }
 
+#ifdef OTFP_CHECK_KERNEL_BOUNDS
+namespace {
+// The sweeps run inside OpenMP regions, which an exception may not leave: a
+// list beyond its records ends the process with the reason on stderr, as an
+// ASan report would.
+void check_rows_or_abort(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, const std::uint32_t* indices,
+                         const BlobArrays& b) {
+  try {
+    check_rows(r0, r1, offsets, indices, b);
+  } catch (const std::out_of_range& e) {
+    std::fprintf(stderr, "otfp: internal error: %s\n", e.what());
+    std::abort();
+  }
+}
+}  // namespace
+#endif
+
 void density_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, const std::uint32_t* indices,
                   const BlobArrays& b, const MinimumImage& mi, double* rho, double* gx, double* gy, double* gz) {
 #ifdef OTFP_CHECK_KERNEL_BOUNDS
-  check_rows(r0, r1, offsets, indices, b);
+  check_rows_or_abort(r0, r1, offsets, indices, b);
 #endif
 #ifdef OTFP_HAVE_AVX2_KERNELS
   if (use_avx2_fma()) return avx2::density_rows(r0, r1, offsets, indices, b, mi, rho, gx, gy, gz);
@@ -54,7 +73,7 @@ void gather_rows(std::size_t r0, std::size_t r1, const std::uint32_t* offsets, c
                  const BlobArrays& b, const double* xyza, const MinimumImage& mi, double* sx, double* sy, double* sz,
                  double* wsum, double* wr2) {
 #ifdef OTFP_CHECK_KERNEL_BOUNDS
-  check_rows(r0, r1, offsets, indices, b);
+  check_rows_or_abort(r0, r1, offsets, indices, b);
 #endif
 #ifdef OTFP_HAVE_AVX2_KERNELS
   if (use_avx2_fma()) return avx2::gather_rows(r0, r1, offsets, indices, b, xyza, mi, sx, sy, sz, wsum, wr2);

@@ -479,3 +479,22 @@ TEST(PairKernels, BoundsCheckRefusesIndicesBeyondTheRecords) {
   const std::vector<std::uint32_t> down{0, 2, 1, 5};
   EXPECT_THROW(detail::check_rows(0, 3, down.data(), idx.data(), b), std::out_of_range);
 }
+
+#if defined(__SANITIZE_ADDRESS__)
+// The sanitizer build runs that check before each sweep and ends the process
+// with the reason, as an ASan report would (the sweeps run inside OpenMP
+// regions, which an exception may not leave).
+TEST(PairKernelsDeathTest, SanitizerBuildStopsASweepBeyondTheRecords) {
+  const std::vector<std::uint32_t> off{0, 1, 2};
+  const std::vector<std::uint32_t> idx{1, 2};  // row 1 lists record 2 of 2
+  const std::vector<double> mc(2, 1.0);
+  std::vector<double> storage;
+  double* rec = detail::packed_records(storage, 2);
+  for (int k = 0; k < 8; ++k) rec[k] = 0.0;
+  const detail::BlobArrays b{rec, mc.data(), 1.0, 2};
+  std::vector<double> out(2);
+  EXPECT_DEATH(detail::density_rows(0, 2, off.data(), idx.data(), b, detail::MinimumImage{}, out.data(), out.data(),
+                                    out.data(), out.data()),
+               "row 1 lists neighbour 2");
+}
+#endif
