@@ -42,6 +42,33 @@ constexpr long kMaxTriesPerInsert = 10'000'000;
 // A closed-form sublayer volume is used only if it agrees with the Monte
 // Carlo estimate within this many standard errors.
 constexpr double kVolumeAgreementSigmas = 4.0;
+// Points classified per batch by classify_in_order().
+constexpr long kClassifyBatch = 16384;
+
+// The Monte Carlo passes below: `count` points drawn one after another from
+// one stream (draw()), each classified by classify(x) -> int (the domain
+// queries, nearly all of the cost: 2 x 10^6 of them per Dirichlet patch),
+// and handed to take(x, class) in the order drawn until take returns false.
+// The classification runs on the OpenMP threads, a batch at a time; the
+// draws and take() stay serial, so the outcome does not depend on the
+// thread count (tests/test_reservoir.cpp). A batch may classify points past
+// the one where take() stops; they are dropped.
+template <class Draw, class Classify, class Take>
+void classify_in_order(long count, Draw&& draw, Classify&& classify, Take&& take) {
+  std::vector<Vec3> x;
+  std::vector<int> cls;
+  for (long done = 0; done < count;) {
+    const long n = std::min(kClassifyBatch, count - done);
+    x.resize(static_cast<std::size_t>(n));
+    cls.resize(static_cast<std::size_t>(n));
+    for (Vec3& y : x) y = draw();
+#pragma omp parallel for schedule(static) if (n >= 4096)
+    for (long k = 0; k < n; ++k) cls[static_cast<std::size_t>(k)] = classify(x[static_cast<std::size_t>(k)]);
+    for (std::size_t k = 0; k < x.size(); ++k)
+      if (!take(x[k], cls[k])) return;
+    done += n;
+  }
+}
 
 }  // namespace
 
@@ -120,14 +147,16 @@ void BoundaryProjection::build_reservoir(std::size_t i) {
   r.quadrature.assign(K, {});
   std::vector<long> hits(K, 0);
   Rng rng(kReservoirSeed + static_cast<std::uint64_t>(c.patch));
-  for (int k = 0; k < samples; ++k) {
-    const Vec3 x = uniform_in(r.box, d, rng);
-    const int j = sublayer_of(band_depth(x), sublayers);
-    if (j < 0) continue;
-    const auto jj = static_cast<std::size_t>(j);
-    ++hits[jj];
-    if (r.quadrature[jj].size() < cap) r.quadrature[jj].push_back(x);
-  }
+  classify_in_order(
+      samples, [&] { return uniform_in(r.box, d, rng); },
+      [&](const Vec3& x) { return sublayer_of(band_depth(x), sublayers); },
+      [&](const Vec3& x, int j) {
+        if (j < 0) return true;
+        const auto jj = static_cast<std::size_t>(j);
+        ++hits[jj];
+        if (r.quadrature[jj].size() < cap) r.quadrature[jj].push_back(x);
+        return true;
+      });
   long total = 0;
   for (long h : hits) total += h;
   require(total > 0, "boundary.reservoir_domain", "band of patch " + name,
@@ -190,12 +219,16 @@ void BoundaryProjection::build_reservoir(std::size_t i) {
     const double mbox_volume = box_measure(mbox, d);
     std::vector<long> mhits(K, 0);
     Rng mrng(kReservoirSeed + 0x9e37ULL + static_cast<std::uint64_t>(c.patch));
-    for (int k = 0; k < samples; ++k) {
-      const Vec3 x = uniform_in(mbox, d, mrng);
-      if (domain_->signed_distance(x) > 0.0) continue;
-      const int jj = sublayer_of(band_depth(r.wall->reflect(x, nullptr)), sublayers);
-      if (jj >= 0) ++mhits[static_cast<std::size_t>(jj)];
-    }
+    classify_in_order(
+        samples, [&] { return uniform_in(mbox, d, mrng); },
+        [&](const Vec3& x) {
+          if (domain_->signed_distance(x) > 0.0) return -1;
+          return sublayer_of(band_depth(r.wall->reflect(x, nullptr)), sublayers);
+        },
+        [&](const Vec3&, int jj) {
+          if (jj >= 0) ++mhits[static_cast<std::size_t>(jj)];
+          return true;
+        });
     std::vector<double> mmc(K), mse(K);
     for (std::size_t jj = 0; jj < K; ++jj) {
       const double p = static_cast<double>(mhits[jj]) / static_cast<double>(samples);
@@ -248,15 +281,17 @@ void BoundaryProjection::build_reservoir(std::size_t i) {
     Rng crng(kReservoirSeed + 0x5143ULL + static_cast<std::uint64_t>(c.patch));
     std::size_t placed = 0;
     const long max_tries = kMaxTriesPerInsert * static_cast<long>(std::min<std::size_t>(total_want, 1000));
-    for (long tries = 0; placed < total_want && tries < max_tries; ++tries) {
-      const Vec3 x = uniform_in(r.box, d, crng);
-      const int j = sublayer_of(band_depth(x), sublayers);
-      if (j < 0) continue;
-      auto& pool = r.candidates[static_cast<std::size_t>(j)];
-      if (pool.size() >= want[static_cast<std::size_t>(j)]) continue;
-      pool.push_back(x);
-      ++placed;
-    }
+    if (total_want > 0)
+      classify_in_order(
+          max_tries, [&] { return uniform_in(r.box, d, crng); },
+          [&](const Vec3& x) { return sublayer_of(band_depth(x), sublayers); },
+          [&](const Vec3& x, int j) {
+            if (j < 0) return true;
+            auto& pool = r.candidates[static_cast<std::size_t>(j)];
+            if (pool.size() >= want[static_cast<std::size_t>(j)]) return true;
+            pool.push_back(x);
+            return ++placed < total_want;
+          });
     for (std::size_t j = 0; j < K; ++j)
       require(!r.candidates[j].empty(), "boundary.reservoir_control", "quiet",
               "found no candidate point in sublayer " + std::to_string(j) + " of patch " + name);

@@ -244,10 +244,24 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
   // the pointwise target T(c) = clamp(2 g - rho(R c), 0, 2 g) (odd) or g.
   const PlacementDensity density(particles, walls_, kPlacementKernelTolerance, unseen_s_max_);
   const double r2 = density.radius() * density.radius();
-  auto target = [&](const Vec3& y) {
-    const double g = c.data(y, t_new);
+  auto target = [&](const Vec3& y, double g) {
     if (!odd) return g;
     return std::clamp(2.0 * g - density.at(r.wall->reflect(y, nullptr)), 0.0, 2.0 * std::max(g, 0.0));
+  };
+  // rho(y_k) - T(y_k) at many points: the data g serially (a caller's
+  // function need not be thread-safe), the densities, nearly all of the cost,
+  // on the OpenMP threads (each point's value is computed alone, so the
+  // result does not depend on the thread count).
+  auto excess_at = [&](const auto& point, std::size_t count, std::vector<double>& out) {
+    out.resize(count);
+    for (std::size_t k = 0; k < count; ++k) out[k] = c.data(point(k), t_new);
+    const auto n = static_cast<std::ptrdiff_t>(count);
+#pragma omp parallel for schedule(dynamic, 16) if (n >= 64)
+    for (std::ptrdiff_t kk = 0; kk < n; ++kk) {
+      const auto k = static_cast<std::size_t>(kk);
+      const Vec3& y = point(k);
+      out[k] = density.at(y) - target(y, out[k]);
+    }
   };
 
   // Each group's change goes to its sublayers by their own deficits
@@ -314,11 +328,8 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
   for (std::size_t j = 0; j < K; ++j) {
     if (quota[j] >= 0) continue;
     const std::vector<std::size_t>& in_j = sublayer_members[j];
-    std::vector<double> excess(in_j.size());
-    for (std::size_t k = 0; k < in_j.size(); ++k) {
-      const Vec3& y = particles.positions()[in_j[k]];
-      excess[k] = density.at(y) - target(y);
-    }
+    std::vector<double> excess;
+    excess_at([&](std::size_t k) -> const Vec3& { return particles.positions()[in_j[k]]; }, in_j.size(), excess);
     for (long n = 0; n < -quota[j]; ++n) {
       const auto k = static_cast<std::size_t>(std::max_element(excess.begin(), excess.end()) - excess.begin());
       const std::size_t p = in_j[k];
@@ -363,8 +374,9 @@ void BoundaryProjection::project_reservoir_quiet(std::size_t i,
       sub_of_cand.push_back(j);
     }
   }
-  std::vector<double> deficit(cand.size());
-  for (std::size_t k = 0; k < cand.size(); ++k) deficit[k] = target(cand[k]) - density.at(cand[k]);
+  std::vector<double> deficit;
+  excess_at([&](std::size_t k) -> const Vec3& { return cand[k]; }, cand.size(), deficit);
+  for (double& v : deficit) v = -v;
   // A placed particle lowers the deficit within its own kernel's cut-off
   // (not the density's: with no particle yet, as when the band is filled
   // at the start, that is the cut-off of a unit width, and every candidate
