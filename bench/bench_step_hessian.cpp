@@ -6,10 +6,11 @@
 //     H = (dt/m) D^2 F at x = x^k (the Hessian in the stepper's scaled
 //     unknowns, transport part = I) by central differences of the exact
 //     gradient, at dt = 1, 10 and 100 x dr^2 / kappa; prints its smallest
-//     and largest eigenvalue. N^DIM particles on a square/cubic lattice
-//     ("square") or with every other row shifted by half a spacing
-//     ("shifted"), each moved by JITTER x dr at random (fixed seed), in the
-//     periodic unit cube; beta = BETA_FACTOR / dr^2.
+//     and largest eigenvalue. LATTICE: N^DIM particles on a square/cubic
+//     lattice ("square") or with every other row shifted by half a spacing
+//     ("shifted"), or (3-D) N^3 cubic cells of 2 ("bcc") or 4 ("fcc")
+//     sites; each moved by up to JITTER x dr at random (fixed seed), in the
+//     periodic unit cube; dr = n^(-1/DIM), beta = BETA_FACTOR / dr^2.
 //   otfp_bench_step_hessian precondition JITTER [SIGMA_FACTOR] [C] [SETTLE_STEPS] [AMP]
 //     One implicit step of the 2-D shifted lattice (16 x 16, beta dr^2 = 2,
 //     JITTER as above) by Ceres' L-BFGS to the stepper's absolute tolerance
@@ -51,22 +52,35 @@ struct Lattice {
   std::size_t size() const { return x.size(); }
 };
 
-Lattice make_lattice(int dim, int N, double beta_factor, bool shifted, double jitter) {
+// N^dim sites of a square/cubic lattice ("square"), the same with every
+// other row shifted by half a spacing ("shifted"), or in 3-D N^3 cubic cells
+// of 2 ("bcc") or 4 ("fcc") sites; dr = n^(-1/dim) in the unit cube.
+Lattice make_lattice(int dim, int N, double beta_factor, const std::string& kind, double jitter) {
   Lattice l;
   l.dim = dim;
-  l.dr = 1.0 / N;
-  l.s = l.dr / std::sqrt(beta_factor);
   l.per = Periodicity::from_domain(*make_periodic_box(dim, Vec3::Zero(), Vec3(1.0, 1.0, dim == 3 ? 1.0 : 0.0)));
-  std::mt19937_64 gen(7);
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::vector<Vec3> basis{Vec3(0.5, 0.5, 0.5)};
+  if (kind == "bcc") basis = {Vec3(0.25, 0.25, 0.25), Vec3(0.75, 0.75, 0.75)};
+  if (kind == "fcc")
+    basis = {Vec3(0.25, 0.25, 0.25), Vec3(0.75, 0.75, 0.25), Vec3(0.75, 0.25, 0.75), Vec3(0.25, 0.75, 0.75)};
+  const double a = 1.0 / N;
   for (int i = 0; i < N; ++i)
     for (int j = 0; j < N; ++j)
-      for (int k = 0; k < (dim == 3 ? N : 1); ++k) {
-        Vec3 y((i + 0.5 + (shifted ? 0.5 * (j % 2) : 0.0)) * l.dr, (j + 0.5) * l.dr, (k + 0.5) * l.dr);
-        for (int a = 0; a < dim; ++a) y[a] += jitter * l.dr * u(gen);
-        if (dim == 2) y[2] = 0.0;
-        l.x.push_back(l.per.wrap(y));
-      }
+      for (int k = 0; k < (dim == 3 ? N : 1); ++k)
+        for (const Vec3& b : basis) {
+          Vec3 y = a * (Vec3(i, j, k) + b);
+          if (kind == "shifted") y[0] += 0.5 * a * (j % 2);
+          if (dim == 2) y[2] = 0.0;
+          l.x.push_back(y);
+        }
+  l.dr = std::pow(1.0 / static_cast<double>(l.size()), 1.0 / dim);
+  l.s = l.dr / std::sqrt(beta_factor);
+  std::mt19937_64 gen(7);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (Vec3& y : l.x) {
+    for (int c = 0; c < dim; ++c) y[c] += jitter * l.dr * u(gen);
+    y = l.per.wrap(y);
+  }
   l.m = 1.0 / static_cast<double>(l.size());
   return l;
 }
@@ -102,10 +116,10 @@ int spectrum(int argc, char** argv) {
   if (argc < 6) return 2;
   const int dim = std::atoi(argv[2]), N = std::atoi(argv[3]);
   const double bf = std::atof(argv[4]);
-  const bool shifted = std::string(argv[5]) == "shifted";
+  const std::string kind = argv[5];
   const double jitter = argc > 6 ? std::atof(argv[6]) : 0.0;
   const double tol = argc > 7 ? std::atof(argv[7]) : 1e-8;
-  const Lattice l = make_lattice(dim, N, bf, shifted, jitter);
+  const Lattice l = make_lattice(dim, N, bf, kind, jitter);
   for (double factor : {1.0, 10.0, 100.0}) {
     FunctionalOptions fo;
     fo.dt = factor * l.dr * l.dr;
@@ -115,7 +129,7 @@ int spectrum(int argc, char** argv) {
     const VectorXd ev = Eigen::SelfAdjointEigenSolver<MatrixXd>(scaled_hessian(f, l, fo.dt), Eigen::EigenvaluesOnly)
                             .eigenvalues();
     std::printf("d = %d, n = %zu, beta dr^2 = %g, %s, jitter %g: dt = %5gx: eigenvalues of H in [%.4g, %.4g]\n", dim,
-                l.size(), bf, shifted ? "shifted" : "square", jitter, factor, ev.minCoeff(), ev.maxCoeff());
+                l.size(), bf, kind.c_str(), jitter, factor, ev.minCoeff(), ev.maxCoeff());
   }
   return 0;
 }
@@ -169,7 +183,7 @@ int precondition(int argc, char** argv) {
   const double sigma_factor = argc > 3 ? std::atof(argv[3]) : 0.5, c = argc > 4 ? std::atof(argv[4]) : 137.0;
   const int settle_steps = argc > 5 ? std::atoi(argv[5]) : 0;
   const double amp = argc > 6 ? std::atof(argv[6]) : 0.0;
-  Lattice l = make_lattice(2, 16, 2.0, true, jitter);
+  Lattice l = make_lattice(2, 16, 2.0, "shifted", jitter);
   // Settled: implicit steps at 1000 x dt_explicit (each from the last), so
   // that x^k is a local minimum of the entropy; then a cosine mode of
   // amplitude amp x dr along x gives the step something physical to do.
@@ -234,7 +248,7 @@ int main(int argc, char** argv) {
   if (mode == "precondition") rc = precondition(argc, argv);
   if (rc == 2)
     std::fprintf(stderr,
-                 "usage: %s spectrum DIM N BETA_FACTOR square|shifted [JITTER] [KERNEL_TOL]\n"
+                 "usage: %s spectrum DIM N BETA_FACTOR square|shifted|bcc|fcc [JITTER] [KERNEL_TOL]\n"
                  "       %s precondition JITTER [SIGMA_FACTOR] [C] [SETTLE_STEPS] [AMP]\n",
                  argv[0], argv[0]);
   return rc;
