@@ -12,6 +12,7 @@ void FillOptions::validate() const {
           "must be finite with hi >= lo");
   if (lattice)
     for (std::int64_t n : lattice_counts) require(n >= 1, "fill lattice count", static_cast<double>(n), "must be >= 1");
+  require(lattice || !staggered, "fill staggered", 1.0, "needs a lattice fill");
   if (shape == FillShape::Gaussian)
     require(std::isfinite(sigma) && sigma > 0.0, "fill sigma", sigma, "must be finite and > 0");
   if (shape == FillShape::Cosine) {
@@ -33,9 +34,21 @@ double invert_cosine_cdf(double u, double a, double k) {
   return xi;
 }
 
+std::int64_t lattice_point_count(int dim, const std::array<std::int64_t, 3>& counts, bool staggered) {
+  std::int64_t n = staggered && dim == 3 ? 2 : 1;
+  for (int k = 0; k < dim; ++k) n *= counts[static_cast<std::size_t>(k)];
+  return n;
+}
+
 ParticleSet fill_particles(const Domain& domain, const FillOptions& o, Rng& rng) {
   o.validate();
   const int dim = domain.dim();
+  // A staggered 2-D lattice repeats every two rows: an odd row count would
+  // put two unshifted rows side by side across a periodic boundary.
+  if (o.lattice && o.staggered && dim == 2)
+    require(o.lattice_counts[1] % 2 == 0, "fill lattice count along y", static_cast<double>(o.lattice_counts[1]),
+            "must be even for a staggered lattice");
+  const bool bcc = o.lattice && o.staggered && dim == 3;
   ParticleSet ps(dim);
   ps.reserve(static_cast<std::size_t>(o.count));
   for (std::int64_t i = 0; i < o.count; ++i) {
@@ -44,17 +57,25 @@ ParticleSet fill_particles(const Domain& domain, const FillOptions& o, Rng& rng)
       // Lattice: cell centres; random: uniform in the box. The cosine fill
       // then maps x through the inverse cumulative density of 1 + a cos(k x).
       x = Vec3::Zero();
-      std::int64_t rest = i;
+      // bcc: two points per cell, at 1/4 and 3/4 of its diagonal.
+      std::int64_t rest = bcc ? i / 2 : i;
+      const double offset = bcc ? (i % 2 == 0 ? 0.25 : 0.75) : 0.5;
+      std::int64_t row = 0;  // the cell's index along y
       for (int k = 0; k < dim; ++k) {
         const double lo = o.lo[k], len = o.hi[k] - o.lo[k];
         if (o.lattice) {
           const std::int64_t nk = o.lattice_counts[static_cast<std::size_t>(k)];
-          x[k] = lo + (static_cast<double>(rest % nk) + 0.5) * len / static_cast<double>(nk);
+          if (k == 1) row = rest % nk;
+          x[k] = lo + (static_cast<double>(rest % nk) + offset) * len / static_cast<double>(nk);
           rest /= nk;
         } else {
           x[k] = lo + len * rng.uniform();
         }
       }
+      // Staggered 2-D: rows alternately a quarter cell left and right along
+      // x (half a cell apart, every point inside the box).
+      if (o.lattice && o.staggered && dim == 2)
+        x[0] += (row % 2 == 0 ? -0.25 : 0.25) * (o.hi[0] - o.lo[0]) / static_cast<double>(o.lattice_counts[0]);
       if (o.shape == FillShape::Cosine) x[0] = o.lo[0] + invert_cosine_cdf(x[0] - o.lo[0], o.amplitude, o.wavenumber);
     } else if (o.shape == FillShape::Gaussian) {
       x = Vec3::Zero();

@@ -1,4 +1,5 @@
 #include "otfp/run_setup.hpp"
+#include "otfp/initial_fill.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -57,6 +58,7 @@ void InitialFillRule::validate() const {
           "not used by fill.lattice (the lattice of spacing dr sets the count)");
   require(filled || lattice || !(count || mass), field, value,
           "has no effect: fill.filled is false (no particles are drawn)");
+  require(lattice || !staggered, "fill.staggered", 1.0, "needs fill.lattice");
   require(given_count < 0 || !(filled || lattice), "fill.given_count", static_cast<double>(given_count),
           "given particles replace a drawn fill: fill.filled and fill.lattice must be false");
 }
@@ -141,15 +143,21 @@ RunParameters run_parameters(const Domain& domain, const std::vector<ConstantBou
     for (int k = 0; k < dim; ++k)
       require(std::isfinite(f.lattice_lo[k]) && std::isfinite(f.lattice_hi[k]) && f.lattice_lo[k] <= f.lattice_hi[k],
               "fill.lattice_hi", f.lattice_hi[k], "must be finite and >= fill.lattice_lo on every used axis");
-    double total = 1.0;  // in double first: an extreme box must not overflow the count
-    for (int k = 0; k < dim; ++k) total *= std::max(1.0, std::round((f.lattice_hi[k] - f.lattice_lo[k]) / p.dr));
+    // Cells of the spacing dr, one point each; staggered in 3-D (bcc, two
+    // points per cell) cells of 2^(1/3) dr, and in 2-D an even number of
+    // rows (the pattern repeats every two).
+    const bool bcc = f.staggered && dim == 3;
+    const double cell = bcc ? std::cbrt(2.0) * p.dr : p.dr;
+    auto cells = [&](int k) {
+      double c = std::max(1.0, std::round((f.lattice_hi[k] - f.lattice_lo[k]) / cell));
+      if (f.staggered && dim == 2 && k == 1) c = std::max(2.0, 2.0 * std::round(0.5 * c));
+      return c;
+    };
+    double total = bcc ? 2.0 : 1.0;  // in double first: an extreme box must not overflow the count
+    for (int k = 0; k < dim; ++k) total *= cells(k);
     require(total <= 1e8, "fill.lattice", total, "lattice points: at most 1e8");
-    p.fill_count = 1;
-    for (int k = 0; k < dim; ++k) {
-      p.lattice_counts[static_cast<std::size_t>(k)] =
-          std::max<std::int64_t>(1, std::llround((f.lattice_hi[k] - f.lattice_lo[k]) / p.dr));
-      p.fill_count *= p.lattice_counts[static_cast<std::size_t>(k)];
-    }
+    for (int k = 0; k < dim; ++k) p.lattice_counts[static_cast<std::size_t>(k)] = std::llround(cells(k));
+    p.fill_count = lattice_point_count(dim, p.lattice_counts, f.staggered);
   }
 
   // M_inf: the first rule that applies (MassRule).

@@ -5,6 +5,7 @@
 #include <cmath>
 
 #include "otfp/initial_fill.hpp"
+#include "otfp/neighbor_list.hpp"
 
 using namespace otfp;
 
@@ -91,5 +92,57 @@ TEST(InitialFill, BadOptionsNameTheField) {
     ADD_FAILURE() << "accepted mass 0";
   } catch (const InvalidArgument& e) {
     EXPECT_EQ(std::string(e.what()).rfind("fill mass = 0", 0), 0u) << e.what();
+  }
+}
+
+// The staggered lattice: in 2-D the rows alternate a quarter cell left and
+// right (half a cell apart), in 3-D two points per cell at 1/4 and 3/4 of its
+// diagonal (bcc, whose nearest neighbours are sqrt(3)/4 of a cell width
+// apart); an odd row count in 2-D is refused, naming the field.
+TEST(InitialFill, StaggeredLatticeShiftsEveryOtherRowIn2DAndIsBodyCentredIn3D) {
+  FillOptions o;
+  o.width_s = 0.1;
+  o.mass = 0.5;
+  o.lattice = true;
+  o.staggered = true;
+  Rng rng(1);
+  o.lattice_counts = {2, 4, 1};
+  o.count = lattice_point_count(2, o.lattice_counts, true);
+  o.hi = Vec3(2.0, 4.0, 0.0);
+  const ParticleSet flat = fill_particles(*make_periodic_box(2, Vec3::Zero(), o.hi), o, rng);
+  ASSERT_EQ(flat.size(), 8u);
+  for (std::size_t i = 0; i < 8; ++i) {
+    const double row = static_cast<double>(i / 2), shift = (i / 2) % 2 == 0 ? -0.25 : 0.25;
+    EXPECT_EQ(flat.positions()[i], Vec3(0.5 + shift + static_cast<double>(i % 2), 0.5 + row, 0.0)) << i;
+  }
+
+  o.lattice_counts = {2, 2, 2};
+  o.count = lattice_point_count(3, o.lattice_counts, true);
+  EXPECT_EQ(o.count, 16);
+  o.hi = Vec3::Ones();
+  const ParticleSet bcc = fill_particles(*make_periodic_box(3, Vec3::Zero(), o.hi), o, rng);
+  ASSERT_EQ(bcc.size(), 16u);
+  const Periodicity per = Periodicity::from_domain(*make_periodic_box(3, Vec3::Zero(), o.hi));
+  for (std::size_t p = 0; p < 16; ++p) {
+    double nearest = 1e9;
+    int at_nearest = 0;
+    for (std::size_t q = 0; q < 16; ++q) {
+      if (q == p) continue;
+      const double d = per.displacement(bcc.positions()[p], bcc.positions()[q]).norm();
+      if (d < nearest - 1e-12) nearest = d, at_nearest = 0;
+      if (std::abs(d - nearest) <= 1e-12) ++at_nearest;
+    }
+    EXPECT_NEAR(nearest, std::sqrt(3.0) / 4.0, 1e-15) << p;  // cells of 1/2
+    EXPECT_EQ(at_nearest, 8) << p;                            // bcc: eight nearest neighbours
+  }
+
+  o.lattice_counts = {2, 3, 1};
+  o.count = 6;
+  o.hi = Vec3(2.0, 3.0, 0.0);
+  try {
+    fill_particles(*make_periodic_box(2, Vec3::Zero(), o.hi), o, rng);
+    ADD_FAILURE() << "accepted three staggered rows";
+  } catch (const InvalidArgument& e) {
+    EXPECT_EQ(std::string(e.what()).rfind("fill lattice count along y = 3", 0), 0u) << e.what();
   }
 }

@@ -15,6 +15,7 @@
 #include "otfp/fractional.hpp"
 #include "otfp/geometry.hpp"
 #include "otfp/implicit_stepper.hpp"
+#include "otfp/initial_fill.hpp"
 #include "otfp/parameters.hpp"
 #include "test_support.hpp"
 #ifdef OTFP_WITH_TAO
@@ -245,6 +246,56 @@ TEST(ImplicitStepper, CeresAndTaoReachSameMinimizer3DWidths) {
   backends_agree(3, WidthMode::PerParticle, Backend::Tao);
 }
 #endif
+
+// The square lattice is a saddle of the entropy at beta dr^2 = 2, the
+// staggered one a minimum (docs/stepper.md, "The step's Hessian": the step's
+// Hessian at 10x has eigenvalues down to -3.8 on the square lattice and >= 1
+// on the staggered one). So one implicit step at 10x dt_explicit from either
+// lattice with every particle moved by up to 1e-3 dr shrinks the disturbance
+// on the staggered lattice and amplifies it on the square one. (The mean
+// displacement, a translation the entropy does not see, is taken out.)
+TEST(ImplicitStepper, StaggeredLatticeIsStableWhereTheSquareLatticeIsNot) {
+  const int dim = 2, side = 16;
+  const DomainPtr cell = make_periodic_box(dim, Vec3::Zero(), Vec3(1.0, 1.0, 0.0));
+  const double dr = 1.0 / side, s = dr / std::sqrt(2.0);
+  auto disturbance_after_step = [&](bool staggered, double& before) {
+    FillOptions fo;
+    fo.lattice = true;
+    fo.staggered = staggered;
+    fo.lattice_counts = {side, side, 1};
+    fo.count = lattice_point_count(dim, fo.lattice_counts, staggered);
+    fo.width_s = s;
+    fo.mass = 1.0 / static_cast<double>(fo.count);
+    fo.hi = Vec3(1.0, 1.0, 0.0);
+    Rng rng(3);
+    ParticleSet ps = fill_particles(*cell, fo, rng);
+    const std::vector<Vec3> site = ps.positions();  // ids are the fill's indices
+    for (Vec3& x : ps.positions()) x = cell->wrap(x + 1e-3 * dr * Vec3(rng.uniform(-1, 1), rng.uniform(-1, 1), 0.0));
+    const Periodicity per = Periodicity::from_domain(*cell);
+    auto rms = [&](const ParticleSet& p) {
+      Vec3 mean = Vec3::Zero();
+      std::vector<Vec3> d(p.size());
+      for (std::size_t k = 0; k < p.size(); ++k) {
+        d[k] = per.displacement(p.positions()[k], site[static_cast<std::size_t>(p.ids()[k])]);
+        mean += d[k] / static_cast<double>(p.size());
+      }
+      double sum = 0.0;
+      for (const Vec3& v : d) sum += (v - mean).squaredNorm();
+      return std::sqrt(sum / static_cast<double>(p.size()));
+    };
+    before = rms(ps);
+    ImplicitOptions o = tight_options(Backend::Ceres, WidthMode::Fixed, 1e-6);
+    ImplicitStepper stepper(dim, o, Barrier{}, per);
+    const StepSummary st = stepper.step(ps, 10.0 * dr * dr);
+    EXPECT_TRUE(st.accepted) << st.message;
+    return rms(ps);
+  };
+  double before = 0.0;
+  const double staggered = disturbance_after_step(true, before);
+  EXPECT_LT(staggered, 0.5 * before) << "staggered: " << before << " -> " << staggered;
+  const double square = disturbance_after_step(false, before);
+  EXPECT_GT(square, 5.0 * before) << "square: " << before << " -> " << square;
+}
 
 TEST(ImplicitStepper, SingleFreeBlobWidthFollowsClosedForm) {
   for (int dim = 1; dim <= 3; ++dim) {

@@ -56,6 +56,7 @@ TreatmentOptions treatment_preset(TreatmentPreset preset, int dim);
 struct InitialFillRule {
   bool filled = false;              // particles drawn at t = 0 (false: none, unless `lattice` or given ones)
   bool lattice = false;             // a cell-centred lattice over [lattice_lo, lattice_hi]: round(edge / dr) per axis
+  bool staggered = false;           // the lattice staggered (FillOptions::staggered): 2-D an even count along y, 3-D bcc cells of 2^(1/3) dr
   Vec3 lattice_lo = Vec3::Zero();   // the lattice's box
   Vec3 lattice_hi = Vec3::Zero();
   std::optional<std::int64_t> count;  // particles of a drawn fill (>= 0); absent: mass / m_p if mass is given, else n_inf
@@ -125,7 +126,7 @@ struct RunParameters {
   MassRule M_inf_rule = MassRule::Unset;  // the rule that set M_inf
   double particle_mass = 0.0;        // m_p (0 while M_inf is)
   std::int64_t fill_count = 0;       // particles at t = 0: the lattice's, the given ones', or the fill's
-  std::array<std::int64_t, 3> lattice_counts{1, 1, 1};  // fill.lattice: points per axis
+  std::array<std::int64_t, 3> lattice_counts{1, 1, 1};  // fill.lattice: cells per axis (points: lattice_point_count)
 };
 
 // (36)-(40), the step, the band, the masses and the fill's count for

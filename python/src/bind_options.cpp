@@ -136,6 +136,7 @@ void bind_options(py::module_& m) {
       .field("width_s", &FillOptions::width_s, "s of every particle")
       .field("mass", &FillOptions::mass, "m_p of every particle")
       .field("lattice", &FillOptions::lattice, "cell centres of a lattice in [lo, hi]")
+      .field("staggered", &FillOptions::staggered, "lattice: 2-D rows shifted by half a cell, 3-D bcc (2 points per cell)")
       .field("lattice_counts", &FillOptions::lattice_counts, "points per axis")
       .field("lo", &FillOptions::lo, "box of the lattice / cosine")
       .field("hi", &FillOptions::hi, "box of the lattice / cosine")

@@ -39,6 +39,7 @@ void bind_run_setup(py::module_& m) {
   Options<InitialFillRule>(m, "InitialFillRule", "The particles at t = 0: how many, and so M_inf where nothing else sets it.")
       .field("filled", &InitialFillRule::filled, "particles drawn at t = 0")
       .field("lattice", &InitialFillRule::lattice, "a lattice of spacing ~dr over [lattice_lo, lattice_hi]")
+      .field("staggered", &InitialFillRule::staggered, "the lattice staggered: 2-D rows shifted by half a cell, 3-D bcc")
       .field("lattice_lo", &InitialFillRule::lattice_lo, "the lattice's box")
       .field("lattice_hi", &InitialFillRule::lattice_hi, "the lattice's box")
       .field("count", &InitialFillRule::count, "particles of a drawn fill; None: mass / m_p if mass is given, else n_inf; 0: none")

@@ -51,7 +51,8 @@ RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded
   const ParticlesSection& pa = c.particles;
   InitialFillRule& f = o.fill;
   f.filled = pa.fill != Fill::Empty && pa.fill != Fill::File;  // a file's particles are given ones
-  f.lattice = pa.fill_arrangement == Arrangement::Lattice;
+  f.lattice = pa.fill_arrangement != Arrangement::Random;
+  f.staggered = pa.fill_arrangement == Arrangement::StaggeredLattice;
   f.lattice_lo = c.domain.lo;
   f.lattice_hi = c.domain.hi;
   f.count = pa.fill_count;
@@ -76,7 +77,7 @@ RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded
   return o;
 }
 
-[[noreturn]] void throw_keyed(const InvalidArgument& e) {
+[[noreturn]] void throw_keyed(const InvalidArgument& e, const Config& c) {
   static const std::vector<std::pair<std::string, std::string>> keys = {
       {"n_inf", "particles.n_inf"},
       {"n", "particles.n_inf"},
@@ -110,7 +111,7 @@ RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded
   const std::string what = e.what();
   const std::string lattice = "fill.lattice = ";
   if (what.rfind(lattice, 0) == 0)  // the lattice's size, not a value of the key
-    throw ConfigError("particles.fill_arrangement", "\"lattice\"",
+    throw ConfigError("particles.fill_arrangement", fmt::format("\"{}\"", to_string(c.particles.fill_arrangement)),
                       fmt::format("gives {:.3g} lattice points (at most 1e8)",
                                   std::stod(what.substr(lattice.size(), what.find(':') - lattice.size()))));
   for (const auto& [field, key] : keys)

@@ -12,7 +12,7 @@ namespace otfp::app::detail {
 RunSetupOptions run_setup_options(const Config& c, double length_L, bool bounded);
 
 // An InvalidArgument of run_parameters() ("<field> = <value>: <rule>") as a
-// ConfigError naming the configuration key of the field.
-[[noreturn]] void throw_keyed(const InvalidArgument& e);
+// ConfigError naming the configuration key of the field (c: the values to quote).
+[[noreturn]] void throw_keyed(const InvalidArgument& e, const Config& c);
 
 }  // namespace otfp::app::detail

@@ -275,7 +275,7 @@ ConfiguredRun::ConfiguredRun(Config config) : config_(std::move(config)), state_
   try {
     rp = run_parameters(*domain_, data, ro);
   } catch (const InvalidArgument& e) {
-    detail::throw_keyed(e);
+    detail::throw_keyed(e, c);
   }
   d.volume = rp.volume;
   d.dr = rp.dr;
@@ -583,7 +583,8 @@ ParticleSet ConfiguredRun::initial_particles(Rng& rng) const {
     fo.count = d.fill_count;
     fo.width_s = d.width_s;
     fo.mass = d.particle_mass;
-    fo.lattice = c.particles.fill_arrangement == Arrangement::Lattice;
+    fo.lattice = c.particles.fill_arrangement != Arrangement::Random;
+    fo.staggered = c.particles.fill_arrangement == Arrangement::StaggeredLattice;
     fo.lattice_counts = d.lattice_counts;
     fo.lo = c.domain.lo;
     fo.hi = c.domain.hi;

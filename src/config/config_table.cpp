@@ -63,7 +63,14 @@ std::string to_string(Fill f) {
   }
   return "?";
 }
-std::string to_string(Arrangement a) { return a == Arrangement::Lattice ? "lattice" : "random"; }
+std::string to_string(Arrangement a) {
+  switch (a) {
+    case Arrangement::Random: return "random";
+    case Arrangement::Lattice: return "lattice";
+    case Arrangement::StaggeredLattice: return "staggered_lattice";
+  }
+  return "?";
+}
 
 namespace config_detail {
 
@@ -393,7 +400,7 @@ const std::vector<Field>& fields() {
         choice("particles.fill", &ParticlesSection::fill, named({Fill::Empty, Fill::Uniform, Fill::Gaussian, Fill::Cosine, Fill::File})),
         key("particles.fill_file", &ParticlesSection::fill_file),
         choice("particles.fill_arrangement", &ParticlesSection::fill_arrangement,
-               named({Arrangement::Random, Arrangement::Lattice}))
+               named({Arrangement::Random, Arrangement::Lattice, Arrangement::StaggeredLattice}))
             .written_if(not_from_file),
         key("particles.fill_amplitude", &ParticlesSection::fill_amplitude)
             .with(interval('[', 0, 1, ')', "must be in [0, 1) (density 1 + a cos(k x) > 0)"))

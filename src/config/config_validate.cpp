@@ -123,16 +123,20 @@ void validate(const Config& c) {
                       "needs particles.fill = \"uniform\", \"gaussian\" or \"cosine\"");
   if (pa.fill == Fill::Cosine && !box_shaped)
     throw ConfigError("particles.fill", "\"cosine\"", "needs domain.type = \"periodic_box\", \"box\" or \"free\"");
-  if (pa.fill_arrangement == Arrangement::Lattice) {
+  if (pa.fill_arrangement != Arrangement::Random) {
+    // Appended, not "\"" + ... + "\"": GCC 12's -Wrestrict misfires on that.
+    std::string value(1, '"');
+    value += to_string(pa.fill_arrangement);
+    value += '"';
     if (pa.fill != Fill::Uniform && pa.fill != Fill::Cosine)
-      throw ConfigError("particles.fill_arrangement", "\"lattice\"", "needs particles.fill = \"uniform\" or \"cosine\"");
+      throw ConfigError("particles.fill_arrangement", value, "needs particles.fill = \"uniform\" or \"cosine\"");
     if (!box_shaped)
-      throw ConfigError("particles.fill_arrangement", "\"lattice\"",
-                        "needs domain.type = \"periodic_box\", \"box\" or \"free\"");
+      throw ConfigError("particles.fill_arrangement", value, "needs domain.type = \"periodic_box\", \"box\" or \"free\"");
     if (pa.fill_count || pa.fill_mass)
       throw ConfigError(pa.fill_count ? "particles.fill_count" : "particles.fill_mass",
                         pa.fill_count ? std::to_string(*pa.fill_count) : shown(*pa.fill_mass),
-                        "not used by fill_arrangement = \"lattice\" (the lattice of spacing dr sets the count)");
+                        std::string("not used by fill_arrangement = ").append(value).append(
+                            " (the lattice of spacing dr sets the count)"));
   }
 
   std::set<std::string> patches;

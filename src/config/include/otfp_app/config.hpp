@@ -49,7 +49,7 @@ enum class DtMode { Fixed, Adaptive };
 enum class DomainType { Ball, Box, Cylinder, PeriodicBox, SquarePipeObstacle, Free };
 enum class Axis { X, Y, Z };
 enum class Fill { Empty, Uniform, Gaussian, Cosine, File };  // the shapes of FillShape, no particles, or a file
-enum class Arrangement { Random, Lattice };
+enum class Arrangement { Random, Lattice, StaggeredLattice };
 std::string to_string(DtMode m);
 std::string to_string(DomainType t);
 std::string to_string(Axis a);
@@ -112,7 +112,7 @@ struct ParticlesSection {
   std::optional<double> fill_mass;
   std::optional<Vec3> fill_center;
   double fill_sigma = FillOptions{}.sigma;
-  Arrangement fill_arrangement = Arrangement::Random;  // random | lattice (box-shaped domains)
+  Arrangement fill_arrangement = Arrangement::Random;  // random | lattice | staggered_lattice (box-shaped domains)
   double fill_amplitude = FillOptions{}.amplitude;  // a of the cosine fill 1 + a cos(k x)
   std::int64_t fill_mode = 1;   // k = 2 pi fill_mode / (hi_x - lo_x)
 };
