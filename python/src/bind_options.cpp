@@ -156,6 +156,8 @@ void bind_options(py::module_& m) {
           return fill_particles(*domain, o, rng);
         },
         py::arg("domain"), py::arg("options"), py::arg("seed") = 1);
+  m.def("lattice_point_count", &lattice_point_count, py::arg("dim"), py::arg("counts"), py::arg("staggered") = false,
+        "Points of a lattice of `counts` cells per axis: one per cell, two in 3-D when staggered (bcc).");
 }
 
 }  // namespace otfp::python

@@ -78,3 +78,18 @@ def test_csv_round_trip(tmp_path):
     np.testing.assert_array_equal(back.positions, ps.positions)
     np.testing.assert_array_equal(back.widths, ps.widths)
     np.testing.assert_array_equal(back.ids, ps.ids)
+
+
+def test_staggered_lattice_fill_is_body_centred_in_3d():
+    counts = [2, 2, 2]
+    n = otfp.lattice_point_count(3, counts, staggered=True)
+    assert n == 16 and otfp.lattice_point_count(3, counts) == 8
+    box = otfp.make_periodic_box(3, [0, 0, 0], [1, 1, 1])
+    ps = otfp.fill_particles(box, otfp.FillOptions(count=n, width_s=0.1, mass=1.0 / n, lattice=True,
+                                                   staggered=True, lattice_counts=counts, hi=[1, 1, 1]))
+    x = np.sort(np.unique(np.round(ps.positions[:, 0], 12)))
+    assert list(x) == [0.125, 0.375, 0.625, 0.875]  # cells of 1/2, points at 1/4 and 3/4 of each
+    with pytest.raises(ValueError, match=r"fill lattice count along y = 3"):
+        otfp.fill_particles(otfp.make_periodic_box(2, [0, 0, 0], [1, 1, 0]),
+                            otfp.FillOptions(count=6, width_s=0.1, mass=0.1, lattice=True, staggered=True,
+                                             lattice_counts=[2, 3, 1], hi=[1, 1, 0]))
