@@ -37,7 +37,7 @@ using bench::status_bytes;
 
 int usage(const char* why) {
   std::fprintf(stderr, "otfp_bench_scale: %s\nusage: otfp_bench_scale --n N [--dt-factor F] [--threads T] [--steps K] "
-               "[--treatment converging|papers] [--stopping-norm energy|max] [--lattice cubic|bcc]\n",
+               "[--treatment converging|papers] [--stopping-norm energy|max] [--lattice cubic|bcc] [--max-norm-factor F] [--relative-tolerance R]\n",
                why);
   return 2;
 }
@@ -46,7 +46,8 @@ int usage(const char* why) {
 
 int main(int argc, char** argv) {
   long n = 0, threads = 1, steps = 2;
-  double factor = 1.0;
+  double factor = 1.0, max_norm_factor = ImplicitOptions{}.max_norm_factor,
+         relative_tolerance = ImplicitOptions{}.relative_tolerance;
   std::string treatment = "converging", norm = "energy", lattice = "cubic";
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string key = argv[i];
@@ -70,6 +71,8 @@ int main(int argc, char** argv) {
     else if (key == "--threads") threads = std::strtol(argv[i + 1], &end, 10);
     else if (key == "--steps") steps = std::strtol(argv[i + 1], &end, 10);
     else if (key == "--dt-factor") factor = std::strtod(argv[i + 1], &end);
+    else if (key == "--max-norm-factor") max_norm_factor = std::strtod(argv[i + 1], &end);
+    else if (key == "--relative-tolerance") relative_tolerance = std::strtod(argv[i + 1], &end);
     else return usage(("unknown option " + key).c_str());
     if (end == nullptr || *end != '\0') return usage(("bad value for " + key).c_str());
   }
@@ -95,6 +98,8 @@ int main(int argc, char** argv) {
   o.projection.layer_b = pp.layer_b;
   o.implicit.rho_ref = 1.0;
   o.implicit.stopping_norm = stopping_norm_from_string(norm);
+  o.implicit.max_norm_factor = max_norm_factor;
+  o.implicit.relative_tolerance = relative_tolerance;
   if (treatment == "converging") {
     o.projection.dirichlet_mode = DirichletMode::Reservoir;
     o.projection.reservoir_profile = ReservoirProfile::Odd;
@@ -130,7 +135,10 @@ int main(int argc, char** argv) {
   std::vector<double> wall, evals, builds;
   for (long k = 0; k <= steps; ++k) {
     const SimulationStep st = sim.advance(dt);
-    if (k == 0) continue;  // warm-up: leave the random fill
+    if (k == 0) {  // warm-up: leave the random fill
+      std::fprintf(stderr, "step 0 (warm-up): %d evaluations\n", st.diffusion.evaluations);
+      continue;
+    }
     wall.push_back(st.wall_seconds);
     evals.push_back(st.diffusion.evaluations);
     std::fprintf(stderr, "step %ld: %d evaluations\n", k, st.diffusion.evaluations);

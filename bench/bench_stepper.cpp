@@ -84,6 +84,8 @@ void set_measured_tolerances(ImplicitOptions& o) {
   o.relative_tolerance = 1e-1;
   // OTFP_BENCH_STOPPING_NORM=energy|max: the stopping rule's norm (docs/stepper.md).
   if (const char* norm = std::getenv("OTFP_BENCH_STOPPING_NORM")) o.stopping_norm = stopping_norm_from_string(norm);
+  // OTFP_BENCH_MAX_NORM_FACTOR=F: the energy rule's bound on the largest particle (docs/stepper.md).
+  if (const char* f = std::getenv("OTFP_BENCH_MAX_NORM_FACTOR")) o.max_norm_factor = std::atof(f);
 }
 
 // The benchmarks' backend argument: 0 Ceres, 1 NLopt, 2 TAO (a build with otfp::mpi).

@@ -995,9 +995,17 @@ void expect_same_run(const RunComparison& r, double dx_bound = 1e-9) {
 
 }  // namespace
 
+// From an empty ball: after step 1 the band sheds ~300 particles, and the
+// solve of step 2 amplifies any round-off difference some 350-550x (the
+// serial run, its particles stored unsorted against sorted: 3.8e-13 -> 2.1e-10
+// of the domain's size; 2 ranks against 1: 2e-10 -> 7e-8); with the
+// stopping rule's bound on the largest particle at 10 instead of 100 it
+// stopped elsewhere and amplified 130x and 25x (1.2e-10 -> 3e-9 on 2 ranks;
+// measured 2026-12-03; docs/distributed.md). So the bound here is 1e-7:
+// still 360x below the solver's resolution (1e-3 widths = 3.6e-5 of the size).
 TEST(DistributedSimulation, SphereMatchesTheSerialTaoRun) {
   const DomainPtr ball = make_ball(3, Vec3::Zero(), 1.0);
-  expect_same_run(compare_runs(ball, {{0, PatchKind::Dirichlet, 0.238732}}, 400, 10));
+  expect_same_run(compare_runs(ball, {{0, PatchKind::Dirichlet, 0.238732}}, 400, 10), 1e-7);
 }
 
 // The papers' layer: random insertions and deletions (by id), the same

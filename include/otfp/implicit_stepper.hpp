@@ -37,7 +37,7 @@ struct ImplicitOptions {
   double error_smoothing = 2.0;                      // error estimate: smoothing length in widths s (0: per particle)
   ErrorMeasure error_measure = ErrorMeasure::Displacement;  // what StepSummary::error_estimate measures (docs/stepper.md)
   StoppingNorm stopping_norm = StoppingNorm::Energy; // norm of the stopping rule's residual (docs/stepper.md)
-  double max_norm_factor = 10.0;                     // Energy: the largest particle's residual may be this x the RMS tolerance (>= 1)
+  double max_norm_factor = 100.0;                    // Energy: the largest particle's residual may be this x the RMS tolerance (>= 1)
   double width_skin = 0.0;                           // PerParticle: list built for widths s (1 + width_skin) (>= 0)
   double max_width_factor = 0.0;                     // PerParticle: s_p <= this x nominal_width (0: off; else > 1)
   double nominal_width = 0.0;                        // the run's nominal width s0 the bound refers to (> 0 if bounded)
