@@ -142,26 +142,6 @@ Bump local_bump(int side) {
   return b;
 }
 
-// Largest difference of the smoothed blob densities of a and b at a's
-// particles, relative to a's mean (the local form of smoothed_density_difference).
-double largest_density_difference(const ParticleSet& a, const ParticleSet& b, double smoothing, const Periodicity& per) {
-  const double widen = std::sqrt(1.0 + smoothing * smoothing);
-  auto widened = [&](const ParticleSet& p) {
-    std::vector<double> w = p.widths();
-    for (double& v : w) v *= widen;
-    return w;
-  };
-  std::vector<double> ra, rb;
-  blob_density(a.dim(), a.positions(), widened(a), a.masses(), a.positions(), per, 1e-12, ra, nullptr);
-  blob_density(b.dim(), b.positions(), widened(b), b.masses(), a.positions(), per, 1e-12, rb, nullptr);
-  double worst = 0.0, mean = 0.0;
-  for (std::size_t i = 0; i < ra.size(); ++i) {
-    worst = std::max(worst, std::abs(ra[i] - rb[i]));
-    mean += ra[i];
-  }
-  return worst / (mean / static_cast<double>(ra.size()));
-}
-
 ParticleSet bump_step(const Bump& b, double dt, double factor, double tight, int substeps, int* evaluations,
                       double relative = -1.0) {
   ImplicitOptions o;
@@ -205,14 +185,14 @@ TEST(StoppingRule, LocalSolveErrorStaysSmallInALargeSystem) {
     const Bump b = local_bump(side);
     const ParticleSet exact = bump_step(b, dt, 0.0, 1e-9, 1, nullptr);
     const ParticleSet fine = bump_step(b, dt, 0.0, 0.0, 16, nullptr);
-    const double time_error = largest_density_difference(exact, fine, smoothing, b.per);
+    const double time_error = test::largest_smoothed_density_difference(exact, fine, smoothing, b.per);
     int evals = 0;
     const ParticleSet got = bump_step(b, dt, 0.0, 0.0, 1, &evals);
-    const double solve_error = largest_density_difference(got, exact, smoothing, b.per);
+    const double solve_error = test::largest_smoothed_density_difference(got, exact, smoothing, b.per);
     if (std::getenv("OTFP_TEST_VERBOSE")) {
       int evals_abs = 0;
       const ParticleSet abs_only = bump_step(b, dt, 0.0, 0.0, 1, &evals_abs, 0.0);
-      const double e = largest_density_difference(abs_only, exact, smoothing, b.per);
+      const double e = test::largest_smoothed_density_difference(abs_only, exact, smoothing, b.per);
       std::printf("side %d: time error %.3g; solve error %.3g (%.3f of it), %d evaluations; without the relative "
                   "rule %.3g (%.3f), %d\n",
                   side, time_error, solve_error, solve_error / time_error, evals, e, e / time_error, evals_abs);
