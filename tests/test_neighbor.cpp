@@ -292,6 +292,27 @@ TEST(NeighborList, RebuildAfterInsertionsAndDeletionsMatchesBruteForce) {
   EXPECT_EQ(nl.build_count(), 2);
 }
 
+// A list that grows from one build to the next holds at most 1/8 more than
+// its entries, not what std::vector::resize would reserve (up to twice the
+// old size, allocated while the old storage is still held): at n = 1e5 that
+// was 400 of the step's 629 MB of heap (docs/performance.md).
+TEST(NeighborList, AGrowingListHoldsLittleMoreThanItsEntries) {
+  const int dim = 2;
+  ParticleSet ps = random_cloud(dim, 800, 0.0, 1.0, 0.02, 0.3, 1.0, 77);
+  NeighborList nl;
+  nl.build(ps.positions(), ps.widths(), Periodicity::none(dim));
+  Rng rng(9);
+  for (int round = 0; round < 3; ++round) {
+    for (int i = 0; i < 8; ++i) ps.add(Vec3(rng.uniform(), rng.uniform(), 0.0), 0.02, 1.0);
+    const std::size_t before = nl.indices().capacity();
+    nl.build(ps.positions(), ps.widths(), Periodicity::none(dim));
+    const std::size_t entries = nl.num_entries();
+    EXPECT_LE(nl.indices().capacity(), entries + entries / 8) << "round " << round;
+    EXPECT_GE(nl.indices().capacity(), std::min(before, entries + entries / 8)) << "round " << round;
+    EXPECT_EQ(list_pairs(nl), brute_pairs(nl, ps.positions(), ps.widths(), Periodicity::none(dim)));
+  }
+}
+
 TEST(BlobDensity, CellListMatchesAllPairs) {
   for (int dim = 1; dim <= 3; ++dim) {
     ParticleSet ps = random_cloud(dim, 1000, -1.0, 1.0, 0.08, 0.4, 0.01, 300 + dim);
