@@ -28,6 +28,26 @@ CPP = {"cpp", "c++", "cxx"}
 PYTHON = {"python", "py", "python3"}
 
 
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def mpi_headers():
+    """The public headers of the component otfp::mpi (src/mpi): those named
+    after one of its sources, and otfp/tao.hpp and otfp/mpi.hpp."""
+    names = {"tao", "mpi"}
+    mpi_src = os.path.join(ROOT, "src", "mpi")
+    for f in os.listdir(mpi_src):
+        stem, ext = os.path.splitext(f)
+        if ext == ".cpp" and os.path.exists(os.path.join(ROOT, "include", "otfp", stem + ".hpp")):
+            names.add(stem)
+    return {f"otfp/{n}.hpp" for n in names}
+
+
+def needs_mpi(code):
+    """Whether a C++ block includes a header of otfp::mpi (skipped in a build without it)."""
+    return any(f'"{h}"' in code or f"<{h}>" in code for h in mpi_headers())
+
+
 def blocks(path):
     """(first line number, language, code) of every fenced block."""
     out, lang, start, lines = [], None, 0, []
@@ -85,7 +105,7 @@ def main():
         name = os.path.basename(path)
         for line, lang, code in blocks(path):
             label = f"{name}:{line} ({lang or 'plain'})"
-            if lang in CPP and "otfp/tao.hpp" in code and not with_mpi:
+            if lang in CPP and needs_mpi(code) and not with_mpi:
                 skipped.append(label + " (needs otfp::mpi)")
             elif lang in CPP:
                 cpp.append((label, f"{os.path.splitext(name)[0]}_{line}", code))
@@ -138,6 +158,7 @@ def main():
         module = os.path.join(build, "python")
         if not os.path.isdir(os.path.join(module, "otfp")):
             skipped += [f"{label}: the Python module is not built" for label, _ in py]
+            py = []
         else:
             env = os.environ.copy()
             env["PYTHONPATH"] = module
