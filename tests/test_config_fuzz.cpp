@@ -418,7 +418,7 @@ TEST(ConfigFuzz, AcceptedMutantsRunCleanly) {
     if (d.mirrored_walls > 0 &&
         (type == DomainType::Ball || type == DomainType::Cylinder || type == DomainType::SquarePipeObstacle))
       continue;
-#if defined(__SANITIZE_ADDRESS__)
+#if defined(OTFP_SANITIZE_ADDRESS)
     // Under the sanitizers (about 7x slower) a case whose Dirichlet data fill
     // the reservoir band with far more particles than n_inf (g |Omega| >>
     // M_inf) is left to the Release pass, which runs it: one such case (235k

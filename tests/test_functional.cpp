@@ -480,7 +480,7 @@ TEST(PairKernels, BoundsCheckRefusesIndicesBeyondTheRecords) {
   EXPECT_THROW(detail::check_rows(0, 3, down.data(), idx.data(), b), std::out_of_range);
 }
 
-#if defined(__SANITIZE_ADDRESS__)
+#if defined(OTFP_SANITIZE_ADDRESS)
 // The sanitizer build runs that check before each sweep and ends the process
 // with the reason, as an ASan report would (the sweeps run inside OpenMP
 // regions, which an exception may not leave).

@@ -43,9 +43,9 @@ def mpi_headers():
     return {f"otfp/{n}.hpp" for n in names}
 
 
-def needs_mpi(code):
-    """Whether a C++ block includes a header of otfp::mpi (skipped in a build without it)."""
-    return any(f'"{h}"' in code or f"<{h}>" in code for h in mpi_headers())
+def needs_mpi(code, headers):
+    """Whether a C++ block includes one of `headers` (mpi_headers())."""
+    return any(f'"{h}"' in code or f"<{h}>" in code for h in headers)
 
 
 def blocks(path):
@@ -101,11 +101,12 @@ def main():
     with open(os.path.join(build, "CMakeCache.txt")) as f:
         with_mpi = "OTFP_WITH_MPI:BOOL=ON" in f.read()
     cpp, py, skipped = [], [], []
+    mpi = mpi_headers()
     for path in args.files:
         name = os.path.basename(path)
         for line, lang, code in blocks(path):
             label = f"{name}:{line} ({lang or 'plain'})"
-            if lang in CPP and needs_mpi(code) and not with_mpi:
+            if lang in CPP and needs_mpi(code, mpi) and not with_mpi:
                 skipped.append(label + " (needs otfp::mpi)")
             elif lang in CPP:
                 cpp.append((label, f"{os.path.splitext(name)[0]}_{line}", code))
