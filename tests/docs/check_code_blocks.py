@@ -7,8 +7,8 @@
 - ```cpp blocks are complete programs: each is compiled against the build
   tree's otfp library (a CMake project with find_package(otfp), otfp_DIR =
   BUILD_DIR, warnings as errors; otfp::mpi linked too where the build has
-  it) and run from an empty temporary directory. A block that includes
-  otfp/tao.hpp is skipped in a build without otfp::mpi.
+  it) and run from an empty temporary directory. A block that includes a
+  header of otfp::mpi (mpi_headers()) is skipped in a build without it.
 - ```python blocks are run with PYTHON (default /usr/bin/python3) from an
   empty temporary directory with PYTHONPATH = BUILD_DIR/python.
 - Either must exit with status 0 and leave nothing behind in the directory it
